@@ -1,0 +1,87 @@
+"""A small rclpy client of the controller and plant: command moves, watch status and truth.
+
+Used by the demo, the DDS tests and the benchmark. It talks only through the public contract
+(msg_defs topics), as any ROS user would.
+"""
+from __future__ import annotations
+
+import time
+
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt32
+
+import msg_defs as md
+from msg_defs.status import Status
+
+
+class SlideClient(Node):
+    def __init__(self, axes=('x',), name='slide_client'):
+        super().__init__(name)
+        self.axes = list(axes)
+        self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
+        self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
+        self.truth = None          # latest plant_states {joint: position}
+        self.joint = None          # latest joint_states
+        self.status = {a: None for a in self.axes}
+        self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
+        self.create_subscription(JointState, md.PLANT_STATES, self._on_truth, md.SERVO_QOS)
+        self.create_subscription(JointState, md.JOINT_STATES, self._on_joint, md.SERVO_QOS)
+        for a in self.axes:
+            self.create_subscription(UInt32, md.status_topic(a),
+                                     lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
+
+    def _on_truth(self, msg):
+        self.truth = dict(zip(msg.name, msg.position))
+
+    def _on_joint(self, msg):
+        self.joint = msg
+
+    def _on_status(self, axis, msg):
+        if msg.data != self.status[axis]:
+            self.status_log[axis].append((time.monotonic(), msg.data))
+        self.status[axis] = msg.data
+
+    def spin_until(self, predicate, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            rclpy.spin_once(self, timeout_sec=0.01)
+        return bool(predicate())
+
+    def wait_ready(self, timeout: float = 15.0) -> bool:
+        """Discovery done and the loop running: subscribers matched, status and truth seen."""
+        return self.spin_until(
+            lambda: self.pub_target.get_subscription_count() > 0 and self.truth is not None
+            and all(s is not None and s & Status.ENABLED for s in self.status.values()),
+            timeout)
+
+    def move(self, targets: dict, timeout: float = 5.0):
+        """Publish a target set; wait until every axis reports MOTION_DONE after MOVING.
+
+        Returns seconds from publish to the last MOTION_DONE, or None on timeout.
+        """
+        msg = md.joint_state(self.get_clock().now().to_msg(), list(targets),
+                             list(targets.values()))
+        marks = {a: len(self.status_log[a]) for a in targets}
+        t0 = time.monotonic()
+        self.pub_target.publish(msg)
+
+        def done(a):
+            seen_moving = False
+            for _, word in self.status_log[a][marks[a]:]:
+                if word & Status.MOVING and not word & Status.MOTION_DONE:
+                    seen_moving = True
+                elif seen_moving and word & Status.MOTION_DONE:
+                    return True
+            return False
+        if not self.spin_until(lambda: all(done(a) for a in targets), timeout):
+            return None
+        last = max(next(t for t, w in reversed(self.status_log[a]) if w & Status.MOTION_DONE)
+                   for a in targets)
+        return last - t0
+
+    def load_position(self, axis='x') -> float:
+        return self.truth[md.load_joint(axis)]

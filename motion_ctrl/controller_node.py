@@ -1,0 +1,291 @@
+"""The `controller` node: a timer-driven servo loop for one or more axes.
+
+A thin shell: parameters, topics, services and the timer are translated into calls on
+`motion_ctrl.axis.Axis`. Parameter sets are validated in the on-set callback (a refusal names the
+parameter and changes nothing) and staged in the post-set callback; the next servo tick applies
+everything staged at once, so several parameters set in one call take effect together.
+Parameter services and the timer share the node's default callback group: they never run
+concurrently, no lock is needed.
+"""
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import time
+
+import rclpy
+from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
+from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt32
+from std_srvs.srv import SetBool, Trigger
+from diagnostic_msgs.msg import DiagnosticArray
+
+import msg_defs as md
+from motion_ctrl import ros_env, ros_params
+from motion_ctrl.axis import Axis
+from motion_ctrl.diagnostics import LoopStats, diagnostics_message
+from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
+                                   CONTROLLER_GLOBAL, consistency)
+
+STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
+
+
+class ControllerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('controller', **kwargs)
+        g = {r.name: ros_params.declare(self, r, r.name) for r in CONTROLLER_GLOBALS}
+        self.axis_names = list(g['axes'])
+        self.servo_rate = g['servo_rate']
+        self.feedback_timeout = g['feedback_timeout']
+        self.period = 1.0 / self.servo_rate
+        self.axes: dict[str, Axis] = {}
+        self.values: dict[str, dict] = {}
+        for name in self.axis_names:
+            values = {r.name: ros_params.declare(self, r, f'{name}.{r.name}')
+                      for r in AXIS_REGISTERS}
+            self.values[name] = values
+            self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see main()
+        self.staged: dict[str, dict] = {}
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._stage)
+
+        # Encoder state per axis: latest counts, their stamp, when they arrived.
+        self.enc = {a: None for a in self.axis_names}      # (motor, load, stamp_s, recv_s)
+        self.enc_used = {a: None for a in self.axis_names}
+
+        qos = md.SERVO_QOS
+        self.pub_command = self.create_publisher(JointState, md.COMMAND, qos)
+        self.pub_joint = self.create_publisher(JointState, md.JOINT_STATES, qos)
+        self.pub_reference = self.create_publisher(JointState, md.REFERENCE_STATES, qos)
+        self.pub_motor = self.create_publisher(JointState, md.MOTOR_STATES, qos)
+        self.pub_status = {a: self.create_publisher(UInt32, md.status_topic(a), md.STATUS_QOS)
+                           for a in self.axis_names}
+        self.pub_diag = self.create_publisher(DiagnosticArray, md.DIAGNOSTICS, 10)
+        self.create_subscription(JointState, md.ENCODERS, self._on_encoders, qos)
+        self.create_subscription(JointState, md.TARGET_POSITION, self._on_target_position, 10)
+        self.create_subscription(JointState, md.TARGET_VELOCITY, self._on_target_velocity, 10)
+        for a in self.axis_names:
+            self._make_services(a)
+
+        self.last_status = {a: None for a in self.axis_names}
+        self.last_status_time = {a: -math.inf for a in self.axis_names}
+        self.stats = LoopStats(self.period)
+        self.last_tick = None
+        self.timer = self.create_timer(self.period, self._tick)
+        self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}')
+
+    # -- parameters -----------------------------------------------------------------------------
+    def _split(self, name):
+        axis, _, reg = name.partition('.')
+        if axis in self.axes and reg in CONTROLLER_AXIS:
+            return axis, reg
+        return None, None
+
+    def _validate(self, params) -> SetParametersResult:
+        candidate = {}
+        for p in params:
+            if p.name in CONTROLLER_GLOBAL:
+                reg = CONTROLLER_GLOBAL[p.name]
+                reason = reg.check(ros_params.plain(p.value))
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+                continue
+            axis, regname = self._split(p.name)
+            if axis is None:
+                continue          # not ours (use_sim_time, ...): rclpy's own rules apply
+            value = ros_params.plain(p.value)
+            reason = CONTROLLER_AXIS[regname].check(value)
+            if reason:
+                return SetParametersResult(successful=False, reason=f'{axis}.{reason}')
+            candidate.setdefault(axis, {})[regname] = value
+        for axis, changes in candidate.items():
+            merged = self.values[axis] | self.staged.get(axis, {}) | changes
+            reasons = consistency(merged)
+            if reasons:
+                return SetParametersResult(successful=False,
+                                           reason='; '.join(f'{axis}.{r}' for r in reasons))
+        return SetParametersResult(successful=True)
+
+    def _stage(self, params) -> None:
+        for p in params:
+            if p.name == 'feedback_timeout':
+                self.feedback_timeout = p.value
+                continue
+            axis, regname = self._split(p.name)
+            if axis is not None:
+                self.staged.setdefault(axis, {})[regname] = ros_params.plain(p.value)
+
+    def _apply_staged(self) -> None:
+        for axis, changes in self.staged.items():
+            merged = self.values[axis] | changes
+            try:
+                self.axes[axis].configure(merged)
+                self.values[axis] = merged
+            except ValueError as e:      # validated already; a core refusal is still logged
+                self.get_logger().error(f'parameters not applied: {e}')
+        self.staged.clear()
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def _on_encoders(self, msg: JointState) -> None:
+        try:
+            counts = md.read_joint_state(msg, 'position')
+        except md.MalformedMessage as e:
+            self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
+            return
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        recv = self.get_clock().now().nanoseconds * 1e-9
+        for a in self.axis_names:
+            m, l = counts.get(md.motor_joint(a)), counts.get(md.load_joint(a))
+            if m is not None and l is not None:
+                self.enc[a] = (int(m), int(l), stamp, recv)
+
+    def _targets(self, msg, field, what):
+        try:
+            return md.read_joint_state(msg, field, known=self.axes)
+        except md.MalformedMessage as e:
+            self.get_logger().warning(f'{what} refused: {e}')
+            return {}
+
+    def _on_target_position(self, msg: JointState) -> None:
+        for a, target in self._targets(msg, 'position', 'target_position').items():
+            ok, reason = self.axes[a].move_to(target)
+            if not ok:
+                self.get_logger().warning(f'target_position refused: {reason}')
+
+    def _on_target_velocity(self, msg: JointState) -> None:
+        for a, v in self._targets(msg, 'velocity', 'target_velocity').items():
+            ok, reason = self.axes[a].jog(v)
+            if not ok:
+                self.get_logger().warning(f'target_velocity refused: {reason}')
+
+    def _make_services(self, a: str) -> None:
+        axis = self.axes[a]
+
+        def trigger(fn):
+            def cb(request, response):
+                response.success, response.message = fn()
+                return response
+            return cb
+
+        def enable(request, response):
+            response.success, response.message = axis.enable(request.data)
+            return response
+        self.create_service(SetBool, md.service_name(a, 'enable'), enable)
+        self.create_service(Trigger, md.service_name(a, 'stop'), trigger(lambda: axis.stop('stop')))
+        self.create_service(Trigger, md.service_name(a, 'estop'),
+                            trigger(lambda: axis.stop('estop')))
+        self.create_service(Trigger, md.service_name(a, 'abort'), trigger(axis.abort))
+        self.create_service(Trigger, md.service_name(a, 'reset'), trigger(axis.reset))
+        self.create_service(Trigger, md.service_name(a, 'correct'), trigger(axis.correct))
+
+    # -- the servo tick -------------------------------------------------------------------------
+    def _tick(self) -> None:
+        t_start = time.perf_counter()
+        now_msg = self.get_clock().now()
+        now = now_msg.nanoseconds * 1e-9
+        dt = self.period if self.last_tick is None else now - self.last_tick
+        self.last_tick = now
+        if dt <= 0.0:
+            return                       # sim time paused or stepped back
+        self.stats.period(dt)
+        if self.staged:
+            self._apply_staged()
+        stamp = now_msg.to_msg()
+        names, outputs = [], []
+        for a, axis in self.axes.items():
+            enc = self.enc[a]
+            if enc is None:
+                continue                 # no feedback yet: the loop stays open, nothing sent
+            motor, load, s_stamp, recv = enc
+            if now - recv > self.feedback_timeout:
+                axis.feedback_fault()
+                out = axis.update(dt, motor, load, sample_dt=0.0)
+            else:
+                prev = self.enc_used[a]
+                sample_dt = None if prev is None else s_stamp - prev
+                self.enc_used[a] = s_stamp
+                out = axis.update(dt, motor, load, sample_dt=sample_dt)
+            names.append(a)
+            outputs.append(out)
+        if names:
+            self.pub_command.publish(md.joint_state(stamp, names, effort=outputs))
+            ax = [self.axes[a] for a in names]
+            self.pub_joint.publish(md.joint_state(
+                stamp, names, [x.load_pos for x in ax], [x.load_vel for x in ax], outputs))
+            self.pub_reference.publish(md.joint_state(
+                stamp, names, [x.command_position for x in ax],
+                [x.profile.velocity for x in ax]))
+            self.pub_motor.publish(md.joint_state(
+                stamp, names, [x.motor_pos for x in ax], [x.motor_vel for x in ax]))
+        for a, axis in self.axes.items():
+            s = int(axis.status)
+            if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
+                self.pub_status[a].publish(UInt32(data=s))
+                self.last_status[a] = s
+                self.last_status_time[a] = now
+        self.stats.work(time.perf_counter() - t_start)
+
+    def _publish_diagnostics(self) -> None:
+        self.pub_diag.publish(diagnostics_message(
+            self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes))
+        self.stats.reset_window()
+
+
+def spin(node) -> None:
+    """Spin on the executor that holds a 1 kHz timer best (REFERENCE.md: EventsExecutor) until
+    SIGINT or SIGTERM.
+
+    EventsExecutor.spin() in rclpy 9.1 busy-waits without running timers or seeing signals
+    (measured here), so it is driven with spin_once. The signals only raise a flag: the context
+    is shut down after the last callback returned, so no callback publishes on a dead context.
+    """
+    try:
+        from rclpy.experimental import EventsExecutor
+        executor = EventsExecutor()
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor
+        executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.append(True))
+    try:
+        while not stop and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run(node_class, args=None) -> int:
+    """Start a node; a bad parameter (from a YAML or the command line) exits 2 with one line."""
+    from rclpy.exceptions import (InvalidParameterTypeException,
+                                  InvalidParameterValueException, ParameterException)
+    from rclpy.signals import SignalHandlerOptions
+    ros_env.local_discovery()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = node_class()
+    except (InvalidParameterValueException, InvalidParameterTypeException,
+            ParameterException, ValueError) as e:
+        files = [a for a in (args or sys.argv) if a.endswith(('.yaml', '.yml'))]
+        where = f' (from {", ".join(files)})' if files else ''
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        print(f'{node_class.__name__}: bad parameter{where}: {msg}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    spin(node)
+    return 0
+
+
+def main(args=None):
+    sys.exit(run(ControllerNode, args))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,86 @@
+"""Loop timing statistics and the /diagnostics message (diagnostic_msgs/DiagnosticArray).
+
+The servo timer is measured, not trusted: rcl timers skip missed periods instead of queueing
+them, so the achieved rate, the period jitter and the skipped ticks (overruns) are counted from
+the real period of every tick. Statistics cover the last diagnostics window (1 s).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from msg_defs.status import Status
+
+
+class LoopStats:
+    def __init__(self, period: float, capacity: int = 65536):
+        self.nominal = period
+        self.periods = np.empty(capacity)
+        self.works = np.empty(capacity)
+        self.n = self.nw = 0
+        self.overruns_total = 0
+
+    def period(self, dt: float) -> None:
+        if self.n < len(self.periods):
+            self.periods[self.n] = dt
+            self.n += 1
+        # A period of k nominal periods means k - 1 ticks were skipped.
+        skipped = int(round(dt / self.nominal)) - 1
+        if skipped > 0:
+            self.overruns_total += skipped
+
+    def work(self, seconds: float) -> None:
+        if self.nw < len(self.works):
+            self.works[self.nw] = seconds
+            self.nw += 1
+
+    def summary(self) -> dict:
+        p = self.periods[:self.n]
+        w = self.works[:self.nw]
+        if not len(p):
+            return {}
+        jitter = np.abs(p - self.nominal)
+        return {
+            'rate_hz': len(p) / p.sum() if p.sum() > 0 else 0.0,
+            'jitter_p50_us': float(np.percentile(jitter, 50) * 1e6),
+            'jitter_p99_us': float(np.percentile(jitter, 99) * 1e6),
+            'jitter_max_us': float(jitter.max() * 1e6),
+            'tick_work_mean_us': float(w.mean() * 1e6) if len(w) else 0.0,
+            'tick_work_max_us': float(w.max() * 1e6) if len(w) else 0.0,
+            'overruns_total': self.overruns_total,
+        }
+
+    def reset_window(self) -> None:
+        self.n = self.nw = 0
+
+
+def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    arr = DiagnosticArray()
+    arr.header.stamp = stamp
+    loop = DiagnosticStatus(name=f'{node_name}: servo loop', hardware_id=node_name)
+    s = stats.summary()
+    nominal = 1.0 / stats.nominal
+    if s and s['rate_hz'] >= 0.99 * nominal:
+        loop.level, loop.message = DiagnosticStatus.OK, f'{s["rate_hz"]:.1f} Hz'
+    elif s:
+        loop.level, loop.message = DiagnosticStatus.WARN, (
+            f'{s["rate_hz"]:.1f} Hz, below 99 % of {nominal:g} Hz')
+    else:
+        loop.level, loop.message = DiagnosticStatus.WARN, 'no ticks yet'
+    loop.values = [KeyValue(key='nominal_rate_hz', value=f'{nominal:g}')] + [
+        KeyValue(key=k, value=f'{v:.6g}') for k, v in s.items()]
+    arr.status.append(loop)
+    for name, axis in axes.items():
+        st = DiagnosticStatus(name=f'{node_name}: axis {name}', hardware_id=name)
+        faults = axis.status & (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT)
+        st.level = DiagnosticStatus.ERROR if faults else DiagnosticStatus.OK
+        st.message = (f'faulted: {Status(faults)!r}' if faults else
+                      'enabled' if axis.enabled else 'disabled')
+        st.values = [KeyValue(key='mode', value=axis.r['mode']),
+                     KeyValue(key='feedback', value=axis.r['feedback']),
+                     KeyValue(key='enabled', value=str(axis.enabled)),
+                     KeyValue(key='status', value=f'0x{int(axis.status):05x}'),
+                     KeyValue(key='following_error_m', value=f'{axis.following_error:.3e}'),
+                     KeyValue(key='output_v', value=f'{axis.output:.3f}')]
+        arr.status.append(st)
+    return arr

@@ -1,0 +1,65 @@
+"""Start the nodes as separate processes and stop them cleanly (demo, tests, benchmark).
+
+Nodes run as `python -m motion_ctrl.<node>` with the interpreter running this code, so the same
+source tree or install is used; SIGINT stops them (they shut down after the current callback).
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+
+REPO_PARAMS = pathlib.Path(__file__).resolve().parent.parent / 'params'
+
+
+def params_dir() -> pathlib.Path:
+    """params/ of the source tree, else the installed share/motion_ctrl/params."""
+    if REPO_PARAMS.is_dir():
+        return REPO_PARAMS
+    from ament_index_python.packages import get_package_share_directory
+    return pathlib.Path(get_package_share_directory('motion_ctrl')) / 'params'
+
+
+def _default_sigint():
+    # A process started in the background of a non-interactive shell inherits SIGINT ignored.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+class NodeProcess:
+    def __init__(self, module: str, params_file=None, params: dict | None = None,
+                 log_path=None, env=None):
+        args = [sys.executable, '-m', f'motion_ctrl.{module}', '--ros-args']
+        if params_file:
+            args += ['--params-file', str(params_file)]
+        for k, v in (params or {}).items():
+            args += ['-p', f'{k}:={v}']
+        self.args = args
+        self.log = open(log_path, 'w') if log_path else subprocess.DEVNULL
+        self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
+                                     env=env or os.environ.copy(), preexec_fn=_default_sigint)
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGINT, wait; SIGKILL only if it does not stop. Returns the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.log is not subprocess.DEVNULL:
+            self.log.close()
+        return self.proc.returncode
+
+
+def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
+                log_dir=None):
+    """Plant and controller with the default params files plus overrides; returns both."""
+    d = params_dir()
+    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
+    plant = NodeProcess('plant_node', d / 'plant.yaml', plant_params, log('plant'))
+    controller = NodeProcess('controller_node', d / 'controller.yaml', controller_params,
+                             log('controller'))
+    return plant, controller

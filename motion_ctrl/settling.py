@@ -1,0 +1,288 @@
+"""RMP-style settling criteria and motion events for one servo axis.
+
+Plain Python (no rclpy), deterministic, stepped with an explicit ``dt`` once per servo tick
+after the profile generator has been stepped.  SI units: m, m/s, s.
+
+Source: RSI RapidCode/RMP "Axis Settling" (shared/seeds/004) and the status-word table of
+SPEC.md.  The four settling criteria are
+
+* fine position tolerance  [m]   -- position moves only;
+* coarse position tolerance [m]  -- position moves only, should be >= fine;
+* velocity tolerance [m/s]       -- position moves (|actual velocity|) and velocity moves
+  (|actual - target velocity|);
+* settling time [s]              -- how long a criterion must hold before its event.
+
+"Setting VelocityTolerance to 0 does not disable the velocity criteria" (seed 004): here no
+tolerance of 0 disables anything; it only makes the criterion hard (exact) to meet.
+
+Motion events produced (``Status`` bits, see :mod:`msg_defs.status`):
+
+MOVING              profile generator active: the profile is not done, or it is still commanding
+                    a non-zero velocity (a jog cruising at constant speed keeps MOVING set).
+AT_TARGET           position move and command position == target, compared exactly.
+                    Never for velocity moves.
+IN_COARSE_POSITION  position move and |target - actual| <= coarse tolerance; may set and clear
+                    more than once when the target is changed on the fly.
+IN_FINE_POSITION    RMP SETTLED.  Evaluated after AT_TARGET: |target - actual| <= fine and
+                    |actual velocity| <= velocity tolerance, both held for the settling time.
+                    Whenever either breaks the bit clears and the settling timer resets.
+MOTION_DONE         position move settled (raised once, together with the first
+                    IN_FINE_POSITION, then latched for that move even if the axis is later
+                    disturbed; IN_FINE_POSITION keeps tracking); a velocity move to zero velocity
+                    whose velocity criterion held for the settling time after the profile reached
+                    zero; a STOP/ESTOP deceleration that finished; an ABORT (at once); or the
+                    idle axis at rest (nothing pending).  A new move clears it.
+MOTION_AT_VELOCITY  velocity move with non-zero target, profile at its constant velocity,
+                    |actual - target velocity| <= velocity tolerance held for the settling time;
+                    clears (timer reset) whenever broken or the velocity changes.
+STOPPED / ESTOPPED  with MOTION_DONE when a STOP / ESTOP deceleration finished.
+ABORTED             with MOTION_DONE at once on ABORT.
+                    STOPPED, ESTOPPED and ABORTED stay set until the next move starts (or
+                    ``idle()`` is called, e.g. when the loop is enabled again).
+
+Timing rule ("held for the settling time"), exactly:
+    Each ``update(dt, ...)`` first advances the internal clock by ``dt``, then evaluates the
+    sample it is given.  On the first tick of an unbroken run where the criterion holds,
+    ``settle_start`` = clock and the held time is 0.  On each further tick of the run the held
+    time grows by that tick's ``dt`` (summed from 0, so it does not depend on the size of the
+    clock).  The event is reported on every tick of the run where
+    ``held >= settling_time - TIME_EPSILON`` (TIME_EPSILON = 1 ns).
+    So with dt = 1 ms and settling_time = 10 ms, a criterion first holding on tick k is reported
+    on tick k + 10 (the 11th consecutive holding tick); settling_time = 0 reports on tick k.
+    A tick where the criterion fails resets the run.
+"""
+
+import math
+import numbers
+
+from msg_defs.status import Status
+
+__all__ = ['Settling', 'TIME_EPSILON', 'MOTION_BITS', 'STOP_KINDS']
+
+#: Tolerance [s] for "held for settling_time" comparisons of accumulated dt.
+TIME_EPSILON = 1e-9
+
+#: The bits this module owns; the caller ORs in the others.
+MOTION_BITS = (Status.MOVING | Status.AT_TARGET | Status.IN_COARSE_POSITION
+               | Status.IN_FINE_POSITION | Status.MOTION_DONE | Status.MOTION_AT_VELOCITY
+               | Status.STOPPED | Status.ESTOPPED | Status.ABORTED)
+
+#: start_stop() kinds and the status bit each one reports when finished.
+STOP_KINDS = {'stop': Status.STOPPED, 'estop': Status.ESTOPPED}
+
+# Modes (what is pending).
+IDLE = 'idle'
+POSITION = 'position'
+VELOCITY = 'velocity'
+STOP = 'stop'
+ESTOP = 'estop'
+ABORT = 'abort'
+
+
+def _finite(name, value):
+    """Return ``value`` as float, or raise ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f'{name} must be a real number, got {value!r}')
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f'{name} must be finite, got {value!r}')
+    return value
+
+
+def _non_negative(name, value):
+    value = _finite(name, value)
+    if value < 0.0:
+        raise ValueError(f'{name} must be >= 0, got {value!r}')
+    return value
+
+
+class Settling:
+    """Settling criteria and motion events of one axis (RSI RMP semantics, seed 004).
+
+    Call one of ``start_position_move``, ``start_velocity_move``, ``start_stop``, ``abort``
+    or ``idle`` when the motion state changes, then ``update()`` once per servo tick.
+
+    Attributes (read-only for callers):
+        bits          last result of ``update()`` (or of ``abort()`` / a start call)
+        settle_start  clock [s] at which the criterion being timed (fine position and velocity
+                      for a position move, the velocity criterion for a velocity move) last
+                      started holding; None while it does not hold
+        clock         internal time [s], the sum of all dt given to ``update()``
+        mode          'idle' | 'position' | 'velocity' | 'stop' | 'estop' | 'abort'
+        target        target position [m] of the position move (None otherwise)
+        target_velocity  target velocity [m/s] of the velocity move (None otherwise)
+    """
+
+    def __init__(self, fine_tolerance=2.54e-6, coarse_tolerance=25.4e-6,
+                 velocity_tolerance=1e-3, settling_time=0.01):
+        self.fine_tolerance = 0.0
+        self.coarse_tolerance = 0.0
+        self.velocity_tolerance = 0.0
+        self.settling_time = 0.0
+        self.configure(fine_tolerance, coarse_tolerance, velocity_tolerance, settling_time)
+        self.clock = 0.0
+        self.bits = Status(0)
+        self.settle_start = None
+        self._held = 0.0          # time [s] the timed criterion has held, summed from 0
+        self._done = False        # MOTION_DONE latched for the current move
+        self.mode = IDLE
+        self.target = None
+        self.target_velocity = None
+
+    # ------------------------------------------------------------------ configuration
+    def configure(self, fine_tolerance, coarse_tolerance, velocity_tolerance, settling_time):
+        """Set the settling criteria (m, m, m/s, s).
+
+        All must be finite and >= 0, and coarse >= fine (seed 004: the coarse tolerance
+        "should be greater than or equal to the fine position tolerance"); otherwise ValueError
+        naming the problem is raised and nothing changes.  A tolerance of 0 does not disable its
+        criterion.  New values apply from the next ``update()``; a running settling timer keeps
+        its held time and is judged against the new values.
+        """
+        fine = _non_negative('fine_tolerance', fine_tolerance)
+        coarse = _non_negative('coarse_tolerance', coarse_tolerance)
+        vel = _non_negative('velocity_tolerance', velocity_tolerance)
+        st = _non_negative('settling_time', settling_time)
+        if coarse < fine:
+            raise ValueError(f'coarse_tolerance ({coarse!r}) must be >= fine_tolerance ({fine!r})')
+        self.fine_tolerance = fine
+        self.coarse_tolerance = coarse
+        self.velocity_tolerance = vel
+        self.settling_time = st
+
+    # ------------------------------------------------------------------ state changes
+    def _begin(self, mode):
+        self.mode = mode
+        self.target = None
+        self.target_velocity = None
+        self._done = False
+        self._reset_timer()
+        self.bits = Status(0)   # a new move clears every event, incl. STOPPED/ESTOPPED/ABORTED
+
+    def start_position_move(self, target):
+        """A new point-to-point move to ``target`` [m] (also an on-the-fly re-target).
+
+        Clears MOTION_DONE, AT_TARGET etc. and restarts the settling timer; the next
+        ``update()`` evaluates against the new target.
+        """
+        target = _finite('target', target)
+        self._begin(POSITION)
+        self.target = target
+
+    def start_velocity_move(self, target_velocity):
+        """A velocity (jog) move to ``target_velocity`` [m/s]; 0 decelerates to rest."""
+        target_velocity = _finite('target_velocity', target_velocity)
+        self._begin(VELOCITY)
+        self.target_velocity = target_velocity
+
+    def start_stop(self, kind):
+        """A STOP (``'stop'``) or ESTOP (``'estop'``) deceleration began.
+
+        The move's target is abandoned; MOTION_DONE | STOPPED (or ESTOPPED) is reported once
+        the profile is done at rest.
+        """
+        if kind not in STOP_KINDS:
+            raise ValueError(f"stop kind must be 'stop' or 'estop', got {kind!r}")
+        self._begin(STOP if kind == 'stop' else ESTOP)
+
+    def abort(self):
+        """ABORT done: MOTION_DONE | ABORTED at once (and until the next move)."""
+        self._begin(ABORT)
+        self._done = True
+        self.bits = Status.MOTION_DONE | Status.ABORTED
+
+    def idle(self):
+        """No move yet / loop just enabled: nothing pending.
+
+        Reports MOTION_DONE while the profile is at rest (nothing left to finish) and MOVING if
+        the caller's profile is somehow active; no position or velocity events.
+        """
+        self._begin(IDLE)
+
+    # ------------------------------------------------------------------ servo tick
+    def _reset_timer(self):
+        self.settle_start = None
+        self._held = 0.0
+
+    def _held_for_settling_time(self, ok, dt):
+        """Advance the settling timer with this tick's criterion; True once held long enough."""
+        if not ok:
+            self._reset_timer()
+            return False
+        if self.settle_start is None:
+            self.settle_start = self.clock   # first tick of the run: held time 0
+            self._held = 0.0
+        else:
+            self._held += dt
+        return self._held >= self.settling_time - TIME_EPSILON
+
+    def update(self, dt, *, command_position, command_velocity, profile_done,
+               actual_position, actual_velocity):
+        """Evaluate one servo tick and return the motion bits (see ``MOTION_BITS``).
+
+        Args (SI): ``dt`` tick length [s] (finite, >= 0); ``command_position`` [m] and
+        ``command_velocity`` [m/s] of the profile after this tick's step; ``profile_done``
+        True once the profile generator has finished (for a velocity move: reached its
+        constant velocity); ``actual_position`` [m], ``actual_velocity`` [m/s] measured.
+        """
+        dt = _non_negative('dt', dt)
+        self.clock += dt
+        moving = (not profile_done) or command_velocity != 0.0
+        bits = Status.MOVING if moving else Status(0)
+        mode = self.mode
+
+        if mode == POSITION:
+            at_target = command_position == self.target     # exact (seed 004: "equal")
+            error = abs(self.target - actual_position)
+            if at_target:
+                bits |= Status.AT_TARGET
+            if error <= self.coarse_tolerance:
+                bits |= Status.IN_COARSE_POSITION
+            # "After AT_TARGET, the evaluation of the settling criteria begins ... Whenever
+            # either criteria 1 or 2 is not satisfied, SETTLED is cleared and the settling timer
+            # is reset."  Velocity tolerance 0 does not disable the velocity criterion.
+            criteria = (at_target and error <= self.fine_tolerance
+                        and abs(actual_velocity) <= self.velocity_tolerance)
+            if self._held_for_settling_time(criteria, dt):
+                bits |= Status.IN_FINE_POSITION
+                self._done = True   # MOTION_DONE raised once per move, then latched
+            if self._done:
+                bits |= Status.MOTION_DONE
+
+        elif mode == VELOCITY:
+            if self.target_velocity == 0.0:
+                # "MOTION_DONE ... by a velocity move only if the target velocity is zero and
+                # the velocity criteria have been met for the period specified by the settling
+                # time" -- timed from when the profile reached zero.
+                criteria = (not moving
+                            and abs(actual_velocity) <= self.velocity_tolerance)
+                if self._held_for_settling_time(criteria, dt):
+                    self._done = True
+                if self._done:
+                    bits |= Status.MOTION_DONE
+            else:
+                # "continuously evaluated during the constant velocity portion ... Whenever
+                # Criteria 1 is not satisfied, MOTION_AT_VELOCITY is set to FALSE and the
+                # settling timer is reset."
+                criteria = (bool(profile_done)
+                            and abs(actual_velocity - self.target_velocity)
+                            <= self.velocity_tolerance)
+                if self._held_for_settling_time(criteria, dt):
+                    bits |= Status.MOTION_AT_VELOCITY
+
+        elif mode in (STOP, ESTOP):
+            # "Normally a MOTION_DONE event will be created at the end of STOP time."
+            if not moving:
+                self._done = True
+            if self._done:
+                bits |= Status.MOTION_DONE | STOP_KINDS[mode]
+
+        elif mode == ABORT:
+            bits = Status.MOTION_DONE | Status.ABORTED
+
+        else:  # IDLE: nothing pending
+            if not moving:
+                bits |= Status.MOTION_DONE
+
+        self.bits = bits
+        return bits

@@ -1,0 +1,49 @@
+"""Topic and service names (SPEC.md "Topics" and "Services"). Relative names: a namespace works."""
+
+TARGET_POSITION = 'target_position'    # sensor_msgs/JointState -> controller, position [m]
+TARGET_VELOCITY = 'target_velocity'    # sensor_msgs/JointState -> controller, velocity [m/s]
+JOINT_STATES = 'joint_states'          # controller ->: load position/velocity, effort = output [V]
+REFERENCE_STATES = 'reference_states'  # controller ->: commanded (profile) position/velocity
+MOTOR_STATES = 'motor_states'          # controller ->: motor side in load units [m, m/s]
+COMMAND = 'command'                    # controller -> plant: effort = amplifier command [V]
+ENCODERS = 'encoders'                  # plant -> controller: raw counts in position
+PLANT_STATES = 'plant_states'          # plant ->: ground truth [m, m/s]
+DIAGNOSTICS = '/diagnostics'           # diagnostic_msgs/DiagnosticArray (absolute by convention)
+CLOCK = '/clock'                       # rosgraph_msgs/Clock in lockstep simulation
+
+# Per-axis services: name -> std_srvs type name ('SetBool' or 'Trigger').
+SERVICES = {
+    'enable': 'SetBool',
+    'stop': 'Trigger',
+    'estop': 'Trigger',
+    'abort': 'Trigger',
+    'reset': 'Trigger',
+    'correct': 'Trigger',
+}
+
+
+def status_topic(axis: str) -> str:
+    """`<axis>/status`, std_msgs/UInt32 status word."""
+    return f'{axis}/status'
+
+
+def service_name(axis: str, service: str) -> str:
+    return f'{axis}/{service}'
+
+
+def motor_joint(axis: str) -> str:
+    """Joint name of the motor (rotary) encoder of an axis in `encoders` / `plant_states`."""
+    return f'{axis}_motor'
+
+
+def load_joint(axis: str) -> str:
+    """Joint name of the load (linear) encoder of an axis in `encoders` / `plant_states`."""
+    return f'{axis}_load'
+
+
+def split_joint(name: str):
+    """'x_motor' -> ('x', 'motor'); anything else -> (None, None)."""
+    axis, sep, side = name.rpartition('_')
+    if sep and axis and side in ('motor', 'load'):
+        return axis, side
+    return None, None
