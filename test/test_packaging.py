@@ -18,11 +18,7 @@ EXPECTED_EXECUTABLES = {
     'controller': 'motion_ctrl.controller_node:main',
     'plant': 'motion_ctrl.plant_node:main',
     'notch': 'motion_ctrl.notch:main',
-    'scenarios': 'motion_ctrl.scenarios:main',
     'demo': 'motion_ctrl.demo:main',
-    'record': 'motion_ctrl.record:main',
-    'report': 'motion_ctrl.report:main',
-    'benchmark': 'motion_ctrl.benchmark:main',
 }
 LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time'}
 
