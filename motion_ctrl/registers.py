@@ -123,13 +123,13 @@ AXIS_REGISTERS = (
     _r('load_counts_per_m', 'double', LOAD_COUNTS_PER_M, 'counts/m',
        'Load (linear) encoder counts per metre.', 'Galil auxiliary encoder', min=0.0,
        min_exclusive=True),
-    _r('kp', 'double', 30000.0, 'V/m', 'Proportional gain.', 'PMAC Ixx30, Galil KP', min=0.0),
-    _r('ki', 'double', 800000.0, 'V/(m·s)', 'Integral gain.', 'PMAC Ixx33, Galil KI', min=0.0),
-    _r('kd', 'double', 250.0, 'V·s/m', 'Derivative gain, on the actual velocity of the '
+    _r('kp', 'double', 22627.4, 'V/m', 'Proportional gain.', 'PMAC Ixx30, Galil KP', min=0.0),
+    _r('ki', 'double', 362038.7, 'V/(m·s)', 'Integral gain.', 'PMAC Ixx33, Galil KI', min=0.0),
+    _r('kd', 'double', 160.0, 'V·s/m', 'Derivative gain, on the actual velocity of the '
        'velocity-loop encoder (PMAC form; set kvff = kd for derivative of error).',
        'PMAC Ixx31, Galil KD', min=0.0),
-    _r('kvff', 'double', 251.0, 'V·s/m', 'Velocity feedforward.', 'PMAC Ixx32', min=0.0),
-    _r('kaff', 'double', 0.576, 'V·s²/m', 'Acceleration feedforward.', 'PMAC Ixx35', min=0.0),
+    _r('kvff', 'double', 161.06, 'V·s/m', 'Velocity feedforward.', 'PMAC Ixx32', min=0.0),
+    _r('kaff', 'double', 0.5972, 'V·s²/m', 'Acceleration feedforward.', 'PMAC Ixx35', min=0.0),
     _r('friction_ff', 'double', 0.0, 'V', 'Friction feedforward, added by the sign of the '
        'commanded velocity (0 at rest).', 'PMAC Ixx68', min=0.0, max=10.0),
     _r('bias', 'double', 0.0, 'V', 'Constant output offset (closed loop only).',
@@ -200,10 +200,11 @@ AXIS_REGISTERS = (
        'velocity.', 'RMP VelocityTolerance', min=0.0),
     _r('settling_time', 'double', 0.02, 's', 'Time the settling criteria must hold.',
        'RMP SettlingTime', min=0.0, max=60.0),
-    _r('correction_tolerance', 'double', 2 / LOAD_COUNTS_PER_M, 'm', 'Sampled dual loop: '
-       'corrections stop when the load error is below this.', 'Galil example: 2 linear counts',
+    _r('correction_tolerance', 'double', 1 / LOAD_COUNTS_PER_M, 'm', 'Sampled dual loop: '
+       'corrections stop when the load encoder error is below this (1 count: only an exact '
+       'reading ends them).', 'Galil example: |V2| < 2 linear counts',
        min=0.0, min_exclusive=True),
-    _r('correction_max_moves', 'integer', 5, 'count', 'Sampled dual loop: most correction moves '
+    _r('correction_max_moves', 'integer', 20, 'count', 'Sampled dual loop: most correction moves '
        'per move.', '', min=0, max=100),
 )
 
@@ -265,16 +266,16 @@ PLANT_PARAMETERS = (
        min_exclusive=True),
     _r('motor_viscous', 'double', 1.0e-5, 'N·m·s/rad', 'Motor viscous friction.', min=0.0),
     _r('motor_coulomb', 'double', 0.004, 'N·m', 'Motor Coulomb (sliding) friction.', min=0.0),
-    _r('motor_stiction', 'double', 0.006, 'N·m', 'Motor breakaway friction (>= coulomb).',
+    _r('motor_stiction', 'double', 0.0045, 'N·m', 'Motor breakaway friction (>= coulomb).',
        min=0.0),
     _r('slide_viscous', 'double', 50.0, 'N·s/m', 'Slide viscous friction.', min=0.0),
     _r('slide_coulomb', 'double', 20.0, 'N', 'Slide Coulomb friction.', min=0.0),
-    _r('slide_stiction', 'double', 25.0, 'N', 'Slide breakaway friction (>= coulomb).', min=0.0),
-    _r('pitch_error_slope', 'double', 1.0e-4, 'm/m', 'Cumulative lead error of the screw '
+    _r('slide_stiction', 'double', 21.0, 'N', 'Slide breakaway friction (>= coulomb).', min=0.0),
+    _r('pitch_error_slope', 'double', 2.0e-4, 'm/m', 'Cumulative lead error of the screw '
        '(nut position gains this much per metre of motor travel).', min=-0.01, max=0.01),
     _r('pitch_error_amplitude', 'double', 2.54e-6, 'm', 'Periodic lead error amplitude.',
        min=0.0, max=0.001),
-    _r('pitch_error_period', 'double', INCH, 'm', 'Period of the periodic lead error.',
+    _r('pitch_error_period', 'double', 1.5 * INCH, 'm', 'Period of the periodic lead error.',
        min=0.0, min_exclusive=True),
     _r('travel_min', 'double', -0.55, 'm', 'Slide end stop (negative).'),
     _r('travel_max', 'double', 0.55, 'm', 'Slide end stop (positive).'),

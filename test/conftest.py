@@ -18,3 +18,19 @@ if os.environ.get('ROS_DOMAIN_ID', '0') in ('', '0'):
 # Tests import the source tree, not the copy installed in .venv.
 if sys.path[0] != REPO_ROOT:
     sys.path.insert(0, REPO_ROOT)
+
+
+# --- ROS 2 over-DDS fixtures (test_ros_*.py) -----------------------------------------------------
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope='session')
+def rclpy_session():
+    """rclpy initialised once for the whole run in this (test) process; skips without rclpy."""
+    rclpy = pytest.importorskip('rclpy')
+    owned = not rclpy.ok()
+    if owned:
+        rclpy.init()
+    yield rclpy
+    if owned:
+        rclpy.try_shutdown()

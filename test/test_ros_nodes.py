@@ -1,0 +1,644 @@
+"""The product over DDS: plant and controller run as separate processes (`python -m
+motion_ctrl.<node> --ros-args --params-file ...`, as `ros2 run` starts them) and this process
+drives them through the public contract only — topics, per-axis services and the parameter
+services `ros2 param` uses — and checks what a user would notice.
+
+One plant + controller pair serves the whole module (start-up costs seconds); every test starts
+from an enabled, unfaulted axis at rest (`axis` fixture) and puts back any parameter it changed.
+Waits are on conditions with deadlines, never fixed sleeps.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import pathlib
+import re
+import time
+from collections import deque
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from rcl_interfaces.msg import ParameterType  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+
+import msg_defs as md  # noqa: E402
+from msg_defs.status import Status  # noqa: E402
+from motion_ctrl.client import SlideClient  # noqa: E402
+from motion_ctrl.processes import start_slide  # noqa: E402
+
+try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
+    import pytest_timeout  # noqa: F401
+    pytestmark = pytest.mark.timeout(120)
+except ImportError:
+    pass
+
+INCH = 0.0254
+COUNT = 2.54e-6                 # one linear (load encoder) count [m]
+MAX_VELOCITY = 0.1              # defaults of params/controller.yaml
+STOP_DECELERATION = 2.0
+ESTOP_DECELERATION = 10.0
+# The default 20 ms encoder watchdog trips when this 2-core VM is loaded by other test runs (the
+# test process itself spins 2 kHz of messages); the tests are about the ROS interface, so the
+# watchdog is widened for them. FEEDBACK_FAULT itself is covered by the unit tests.
+FEEDBACK_TIMEOUT = 0.2
+MIN_JOINT_RATE = 800.0          # Hz of joint_states seen here ("~1 kHz")
+
+FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class Probe(SlideClient):
+    """A ROS user in a process of its own: SlideClient plus logs of joint_states,
+    reference_states and /diagnostics, the axis services and a parameter client."""
+
+    def __init__(self, axis='x'):
+        super().__init__(axes=(axis,), name='ros_test_probe')
+        self.axis = axis
+        self.joint_log = deque(maxlen=30000)   # (stamp, position, velocity, effort)
+        self.joint_count = 0
+        self.ref_log = deque(maxlen=30000)     # (stamp, position, velocity)
+        self.diag = []                         # (monotonic, DiagnosticArray)
+        self.create_subscription(JointState, md.REFERENCE_STATES, self._on_reference,
+                                 md.SERVO_QOS)
+        self.create_subscription(DiagnosticArray, md.DIAGNOSTICS,
+                                 lambda m: self.diag.append((time.monotonic(), m)), 10)
+        self.pub_encoders = self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
+        self.params = AsyncParameterClient(self, 'controller')
+        self.axis_services = {
+            name: self.create_client(SetBool if kind == 'SetBool' else Trigger,
+                                     md.service_name(axis, name))
+            for name, kind in md.SERVICES.items()}
+        self._executor = SingleThreadedExecutor()
+        self._executor.add_node(self)
+
+    # -- subscriptions ---------------------------------------------------------------------------
+    def _on_joint(self, msg):
+        super()._on_joint(msg)
+        i = list(msg.name).index(self.axis)
+        self.joint_log.append((_stamp(msg), msg.position[i], msg.velocity[i], msg.effort[i]))
+        self.joint_count += 1
+
+    def _on_reference(self, msg):
+        i = list(msg.name).index(self.axis)
+        self.ref_log.append((_stamp(msg), msg.position[i], msg.velocity[i]))
+
+    # -- spinning --------------------------------------------------------------------------------
+    def spin_until(self, predicate, timeout: float) -> bool:
+        """Own executor (the node stays added): the global one re-adds the node every call."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            self._executor.spin_once(timeout_sec=0.01)
+        return bool(predicate())
+
+    def spin_for_messages(self, n: int, timeout: float = 2.0) -> list:
+        """The next n joint_states samples."""
+        start = self.joint_count
+        assert self.spin_until(lambda: self.joint_count >= start + n, timeout), \
+            f'joint_states stopped: {self.joint_count - start} of {n} in {timeout} s'
+        return list(self.joint_log)[-(self.joint_count - start):]
+
+    def joint_rate(self, n: int = 300) -> float:
+        """Rate of joint_states [Hz] over the next n samples, from their stamps."""
+        samples = self.spin_for_messages(n)
+        return (len(samples) - 1) / (samples[-1][0] - samples[0][0])
+
+    def _answer(self, future, timeout=5.0):
+        assert self.spin_until(future.done, timeout), 'no answer from the controller'
+        return future.result()
+
+    # -- status ----------------------------------------------------------------------------------
+    @property
+    def word(self) -> Status:
+        return Status(self.status[self.axis] or 0)
+
+    def wait_status(self, predicate, timeout=3.0) -> bool:
+        return self.spin_until(lambda: self.status[self.axis] is not None
+                               and predicate(self.word), timeout)
+
+    def mark(self) -> int:
+        return len(self.status_log[self.axis])
+
+    def words_since(self, mark: int) -> list:
+        return [Status(w) for _, w in self.status_log[self.axis][mark:]]
+
+    def done_since(self, mark: int) -> bool:
+        """MOTION_DONE raised after MOVING, in the status words since `mark`."""
+        seen_moving = False
+        for word in self.words_since(mark):
+            if word & Status.MOVING and not word & Status.MOTION_DONE:
+                seen_moving = True
+            elif seen_moving and word & Status.MOTION_DONE:
+                return True
+        return False
+
+    # -- commands --------------------------------------------------------------------------------
+    def publish_target(self, position, names=None) -> int:
+        names = [self.axis] if names is None else names
+        positions = position if isinstance(position, (list, tuple)) else [position]
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = list(names)
+        msg.position = [float(v) for v in positions]
+        mark = self.mark()
+        self.pub_target.publish(msg)
+        return mark
+
+    def move_and_wait(self, target: float, timeout: float = 6.0) -> None:
+        mark = self.publish_target(target)
+        assert self.spin_until(lambda: self.done_since(mark), timeout), (
+            f'move to {target} m not done in {timeout} s; status words '
+            f'{[hex(w) for w in self.words_since(mark)]}')
+
+    def position(self) -> float:
+        """Load (slide) position from joint_states."""
+        self.spin_for_messages(1)
+        return self.joint_log[-1][1]
+
+    def call(self, service: str, data: bool | None = None, timeout: float = 5.0):
+        client = self.axis_services[service]
+        assert self.spin_until(client.service_is_ready, timeout), f'{service} not available'
+        request = SetBool.Request(data=data) if data is not None else Trigger.Request()
+        return self._answer(client.call_async(request), timeout)
+
+    # -- parameters ------------------------------------------------------------------------------
+    def set_params(self, params: dict) -> list:
+        """One set_parameters call (each parameter judged alone, in order)."""
+        return self._answer(self.params.set_parameters(_parameters(params))).results
+
+    def set_atomically(self, params: dict):
+        return self._answer(self.params.set_parameters_atomically(_parameters(params))).result
+
+    def get_params(self, *names) -> dict:
+        values = self._answer(self.params.get_parameters(list(names))).values
+        return {n: parameter_value_to_python(v) for n, v in zip(names, values)}
+
+    def describe(self, *names) -> list:
+        return self._answer(self.params.describe_parameters(list(names))).descriptors
+
+
+def _parameters(params: dict) -> list:
+    out = []
+    for name, value in params.items():
+        out.append(value if isinstance(value, Parameter) else Parameter(name, value=value))
+    return out
+
+
+@contextlib.contextmanager
+def changed(probe: Probe, params: dict):
+    """Set `params` atomically for the body of the with-block, then put the old values back."""
+    old = probe.get_params(*params)
+    result = probe.set_atomically(params)
+    assert result.successful, result.reason
+    try:
+        yield
+    finally:
+        result = probe.set_atomically(old)
+        assert result.successful, f'restoring {old}: {result.reason}'
+
+
+def far_target(position: float, distance: float) -> float:
+    """A target `distance` away, in whichever direction stays well inside the soft limits."""
+    return position + distance if position + distance < 0.4 else position - distance
+
+
+class LogFile:
+    def __init__(self, path):
+        self.path = pathlib.Path(path)
+
+    def text(self) -> str:
+        return self.path.read_text(errors='replace') if self.path.exists() else ''
+
+    def count(self, pattern: str) -> int:
+        return len(re.findall(pattern, self.text()))
+
+
+def wait_log(probe: Probe, log: LogFile, pattern: str, count: int, timeout=3.0) -> bool:
+    last = [0.0]
+
+    def seen():          # read the file at most every 20 ms, not at every spun callback
+        now = time.monotonic()
+        if now - last[0] < 0.02:
+            return False
+        last[0] = now
+        return log.count(pattern) >= count
+    return probe.spin_until(seen, timeout) or log.count(pattern) >= count
+
+
+# -- fixtures ------------------------------------------------------------------------------------
+class Slide:
+    def __init__(self, plant, controller, probe, log_dir):
+        self.plant, self.controller, self.probe = plant, controller, probe
+        self.controller_log = LogFile(log_dir / 'controller.log')
+        self.plant_log = LogFile(log_dir / 'plant.log')
+
+
+@pytest.fixture(scope='module')
+def slide(rclpy_session, tmp_path_factory):
+    log_dir = tmp_path_factory.mktemp('slide')
+    plant, controller = start_slide(controller_params={'feedback_timeout': FEEDBACK_TIMEOUT},
+                                    log_dir=log_dir)
+    probe = None
+    try:
+        probe = Probe()
+        ready = probe.wait_ready(30.0) and probe.params.wait_for_services(10.0)
+        if not ready:
+            pytest.fail('plant + controller did not come up: controller log:\n'
+                        + LogFile(log_dir / 'controller.log').text()
+                        + '\nplant log:\n' + LogFile(log_dir / 'plant.log').text())
+        yield Slide(plant, controller, probe, log_dir)
+    finally:
+        if probe is not None:
+            probe.destroy_node()
+        plant.stop()
+        controller.stop()
+
+
+@pytest.fixture
+def axis(slide):
+    """The probe, with the axis enabled, unfaulted and at rest (repaired if a test left it not)."""
+    p = slide.probe
+    assert slide.controller.proc.poll() is None, 'controller died:\n' + \
+        slide.controller_log.text()[-3000:]
+    if p.word & FAULTS or not p.word & Status.ENABLED:
+        assert p.call('reset').success
+        assert p.call('enable', True).success
+    assert p.wait_status(lambda s: s & Status.ENABLED and s & Status.MOTION_DONE
+                         and not s & (Status.MOVING | FAULTS), 5.0), \
+        f'axis not ready: {p.word!r}'
+    return p
+
+
+# -- 1. the walking skeleton ------------------------------------------------------------------------
+def test_move_one_inch_over_dds(slide, axis):
+    """A target on target_position moves the simulated slide; the true slide position (plant
+    ground truth) ends within 3 linear counts of it and MOTION_DONE follows MOVING."""
+    p = axis
+    target = INCH if abs(p.position() - INCH) > 1e-3 else 2 * INCH
+    n0 = p.joint_count
+    p.move_and_wait(target, timeout=5.0)
+    p.spin_until(lambda: False, 0.0)
+    during = list(p.joint_log)[-(p.joint_count - n0):]
+    assert max(abs(e) for *_, e in during) > 0.5, 'no amplifier command during the move'
+    # Ground truth from the plant, after the move is reported done.
+    p.spin_for_messages(5)
+    true_pos = p.load_position()
+    assert abs(true_pos - target) <= 3 * COUNT, \
+        f'slide at {true_pos / COUNT:.1f} counts, target {target / COUNT:.1f}'
+    msg = p.joint
+    assert list(msg.name) == ['x'] and _stamp(msg) > 0.0
+    assert abs(msg.position[0] - target) <= 3 * COUNT     # the load encoder as reported
+    assert p.word & Status.MOTION_DONE and p.word & Status.ENABLED
+    assert not p.word & Status.MOVING
+
+
+# -- 2. parameters through the parameter services ----------------------------------------------------
+def test_set_kp_is_applied(axis):
+    p = axis
+    old = p.get_params('x.kp')['x.kp']
+    results = p.set_params({'x.kp': 25000.0})
+    assert results[0].successful, results[0].reason
+    try:
+        assert p.get_params('x.kp') == {'x.kp': 25000.0}
+        p.move_and_wait(far_target(p.position(), 0.005))
+    finally:
+        assert p.set_params({'x.kp': old})[0].successful
+    assert p.get_params('x.kp') == {'x.kp': old}
+
+
+def test_output_limit_caps_the_command(axis):
+    """output_limit (Ixx69) lowered to 0.5 V: joint_states effort never exceeds 0.5 V in the
+    next move, and OUTPUT_SATURATED shows it is the limit at work."""
+    p = axis
+    with changed(p, {'x.output_limit': 0.5}):
+        assert p.get_params('x.output_limit') == {'x.output_limit': 0.5}
+        target = far_target(p.position(), 20 * COUNT)
+        n0 = p.joint_count
+        mark = p.publish_target(target)
+        p.spin_until(lambda: p.done_since(mark), 3.0)
+        during = list(p.joint_log)[-(p.joint_count - n0):]
+        assert len(during) > 100
+        peak = max(abs(e) for *_, e in during)
+        assert peak <= 0.5 + 1e-12, f'effort {peak} V above output_limit 0.5 V'
+        assert any(w & Status.OUTPUT_SATURATED for w in p.words_since(mark)), \
+            'the command never reached the limit: the test proves nothing'
+    p.move_and_wait(far_target(p.position(), 0.001))
+
+
+@pytest.mark.parametrize('value', [-1.0, math.nan], ids=['negative', 'nan'])
+def test_invalid_kp_refused_loop_keeps_running(axis, value):
+    p = axis
+    old = p.get_params('x.kp')['x.kp']
+    result = p.set_params({'x.kp': value})[0]
+    assert not result.successful
+    assert 'x.kp' in result.reason, result.reason
+    assert p.get_params('x.kp') == {'x.kp': old}
+    assert p.joint_rate() >= MIN_JOINT_RATE
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+def test_nan_refused_for_a_register_without_range(axis):
+    p = axis
+    old = p.get_params('x.soft_limit_max')
+    result = p.set_params({'x.soft_limit_max': math.nan})[0]
+    assert not result.successful and 'x.soft_limit_max' in result.reason, result.reason
+    assert p.get_params('x.soft_limit_max') == old
+
+
+def test_integer_for_a_double_refused(axis):
+    """Types are strict: `ros2 param set /controller x.kp 2` is refused (document 2.0), with a
+    reason that names the parameter and the type."""
+    p = axis
+    old = p.get_params('x.kp')
+    result = p.set_params({'x.kp': Parameter('x.kp', Parameter.Type.INTEGER, 2)})[0]
+    assert not result.successful
+    assert 'type' in result.reason.lower(), result.reason
+    assert 'x.kp' in result.reason, result.reason
+    assert p.get_params('x.kp') == old
+
+
+def test_unknown_mode_refused(axis):
+    p = axis
+    old = p.get_params('x.mode')
+    result = p.set_params({'x.mode': 'bogus'})[0]
+    assert not result.successful and 'x.mode' in result.reason, result.reason
+    assert 'position_pid' in result.reason        # the reason lists the valid choices
+    assert p.get_params('x.mode') == old
+
+
+def test_coarse_below_fine_tolerance_refused(axis):
+    p = axis
+    names = ('x.fine_position_tolerance', 'x.coarse_position_tolerance')
+    old = p.get_params(*names)
+    result = p.set_params({'x.coarse_position_tolerance': old[names[0]] / 2})[0]
+    assert not result.successful
+    assert 'x.coarse_position_tolerance' in result.reason
+    assert 'fine_position_tolerance' in result.reason, result.reason
+    assert p.get_params(*names) == old
+
+
+def test_atomic_set_of_tolerances(axis):
+    """fine 50 um alone is inconsistent with coarse 25.4 um (and coarse 100 um alone is fine but
+    then the old fine...); set together in one set_parameters_atomically call they succeed."""
+    p = axis
+    names = ('x.fine_position_tolerance', 'x.coarse_position_tolerance')
+    old = p.get_params(*names)
+    new = {names[0]: 50e-6, names[1]: 100e-6}
+    assert new[names[0]] > old[names[1]]           # fine alone would be refused
+    alone = p.set_params({names[0]: new[names[0]]})[0]
+    assert not alone.successful and 'fine_position_tolerance' in alone.reason
+    result = p.set_atomically(new)
+    assert result.successful, result.reason
+    try:
+        assert p.get_params(*names) == new
+        p.move_and_wait(far_target(p.position(), 0.002))
+    finally:
+        assert p.set_atomically(old).successful
+    assert p.get_params(*names) == old
+
+
+def test_read_only_servo_rate_refused(axis):
+    p = axis
+    old = p.get_params('servo_rate')
+    result = p.set_params({'servo_rate': 500.0})[0]
+    assert not result.successful
+    assert 'servo_rate' in result.reason and 'read-only' in result.reason, result.reason
+    assert p.get_params('servo_rate') == old == {'servo_rate': 1000.0}
+
+
+def test_describe_kp(axis):
+    (d,) = axis.describe('x.kp')
+    assert d.name == 'x.kp' and d.type == ParameterType.PARAMETER_DOUBLE
+    assert 'V/m' in d.description and 'Ixx30' in d.description, d.description
+    assert len(d.floating_point_range) == 1
+    assert d.floating_point_range[0].from_value == 0.0
+    assert not d.read_only
+
+
+# -- 3. services ---------------------------------------------------------------------------------
+def _efforts_after(p: Probe, n=50) -> list:
+    return [e for *_, e in p.spin_for_messages(n)]
+
+
+def test_abort_opens_the_loop(axis):
+    p = axis
+    reply = p.call('abort')
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: not s & Status.ENABLED
+                         and s & Status.ABORTED and s & Status.MOTION_DONE), repr(p.word)
+    assert set(_efforts_after(p)) == {0.0}
+    reply = p.call('enable', True)
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: s & Status.ENABLED and not s & Status.ABORTED), repr(p.word)
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+def test_enable_false_true_and_refusals_while_disabled(slide, axis):
+    p = axis
+    reply = p.call('enable', False)
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: not s & Status.ENABLED), repr(p.word)
+    assert set(_efforts_after(p)) == {0.0}
+    for service in ('stop', 'estop', 'correct'):
+        reply = p.call(service)
+        assert not reply.success, service
+        assert 'not enabled' in reply.message and 'x' in reply.message, reply.message
+    # A target on a disabled axis is refused (logged) and moves nothing.
+    before = slide.controller_log.count('target_position refused: x: not enabled')
+    ref_before = p.ref_log[-1][1]
+    mark = p.publish_target(far_target(p.position(), 0.002))
+    assert wait_log(p, slide.controller_log, 'target_position refused: x: not enabled',
+                    before + 1)
+    assert not any(w & Status.MOVING for w in p.words_since(mark))
+    p.spin_for_messages(20)
+    assert abs(p.ref_log[-1][1] - ref_before) < 5 * COUNT    # the command follows the slide
+    reply = p.call('enable', True)
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: s & Status.ENABLED), repr(p.word)
+    assert p.call('enable', True).success                    # enabling twice is harmless
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+def test_fault_refuses_enable_until_reset(axis):
+    """A fatal following error (Ixx11) opens the loop; enable is refused with a reason until
+    x/reset, which clears the fault and leaves the loop open; enable then closes it."""
+    p = axis
+    with changed(p, {'x.following_error_warning': 0.0, 'x.following_error_fatal': 10e-6}):
+        mark = p.publish_target(far_target(p.position(), 0.01))
+        assert p.wait_status(lambda s: s & Status.FOLLOWING_ERROR_FATAL), repr(p.word)
+        assert not p.word & Status.ENABLED
+        assert any(w & Status.MOVING for w in p.words_since(mark))
+        reply = p.call('enable', True)
+        assert not reply.success and 'reset' in reply.message, reply.message
+        reply = p.call('stop')
+        assert not reply.success and reply.message
+        assert set(_efforts_after(p)) == {0.0}
+    reply = p.call('reset')
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: not s & FAULTS), repr(p.word)
+    assert not p.word & Status.ENABLED
+    reply = p.call('enable', True)
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: s & Status.ENABLED), repr(p.word)
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+def test_reset_on_a_healthy_axis_is_harmless(axis):
+    p = axis
+    reply = p.call('reset')
+    assert reply.success, reply.message
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+@pytest.mark.parametrize('kind, bit, decel', [
+    ('stop', Status.STOPPED, STOP_DECELERATION),
+    ('estop', Status.ESTOPPED, ESTOP_DECELERATION)])
+def test_stop_during_a_long_move(axis, kind, bit, decel):
+    """x/stop (x/estop) during a 0.2 m move: the profile decelerates from cruise at
+    stop_deceleration (estop_deceleration) and the axis ends STOPPED (ESTOPPED) + MOTION_DONE,
+    still enabled, far from the abandoned target."""
+    p = axis
+    target = far_target(p.position(), 0.2)
+    mark = p.publish_target(target)
+    assert p.spin_until(lambda: p.ref_log and abs(p.ref_log[-1][2]) >= 0.999 * MAX_VELOCITY,
+                        3.0), 'move never reached cruise velocity'
+    reply = p.call(kind)
+    assert reply.success, reply.message
+    assert p.wait_status(lambda s: s & bit and s & Status.MOTION_DONE
+                         and not s & Status.MOVING), repr(p.word)
+    assert p.word & Status.ENABLED
+    assert not any(w & Status.IN_FINE_POSITION for w in p.words_since(mark))
+    p.spin_for_messages(20)
+    ref = [r for r in p.ref_log if r[0] >= 0.0]
+    final = ref[-1][1]
+    cruise_end = max(i for i, r in enumerate(ref) if abs(r[2]) >= 0.999 * MAX_VELOCITY)
+    distance = abs(final - ref[cruise_end][1])
+    expected = MAX_VELOCITY ** 2 / (2 * decel)
+    assert 0.8 * expected <= distance <= 1.2 * expected + 4 * COUNT, \
+        f'{kind}: stopped over {distance * 1e3:.3f} mm, expected {expected * 1e3:.3f} mm'
+    assert all(abs(r[2]) <= MAX_VELOCITY * (1 + 1e-9) for r in ref[cruise_end:])
+    assert abs(final - target) > 0.1
+    # A new move clears STOPPED / ESTOPPED and completes.
+    p.move_and_wait(far_target(p.position(), 0.002))
+    assert not p.word & bit
+
+
+# -- 4. robustness ------------------------------------------------------------------------------
+MALFORMED_TARGETS = [
+    (['x'], [0.01, 0.02]),          # position length != names length
+    (['q'], [0.01]),                # unknown axis
+    (['x'], [math.nan]),            # NaN target
+]
+
+
+def test_malformed_targets_ignored_at_rest(slide, axis):
+    p = axis
+    pattern = r'target_position refused'
+    before = slide.controller_log.count(pattern)
+    ref_before = p.ref_log[-1][1]
+    mark = p.mark()
+    for names, positions in MALFORMED_TARGETS:
+        p.publish_target(positions, names)
+    assert wait_log(p, slide.controller_log, pattern, before + len(MALFORMED_TARGETS)), \
+        slide.controller_log.text()[-2000:]
+    assert not any(w & Status.MOVING for w in p.words_since(mark))
+    assert p.joint_rate() >= MIN_JOINT_RATE
+    assert abs(p.ref_log[-1][1] - ref_before) < 1e-12
+    assert slide.controller.proc.poll() is None
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+def test_malformed_targets_do_not_disturb_a_move(slide, axis):
+    p = axis
+    target = far_target(p.position(), 0.05)
+    mark = p.publish_target(target)
+    assert p.wait_status(lambda s: s & Status.MOVING)
+    for names, positions in MALFORMED_TARGETS:
+        p.publish_target(positions, names)
+    assert p.spin_until(lambda: p.done_since(mark), 5.0), repr(p.word)
+    words = p.words_since(mark)
+    assert sum(1 for a, b in zip(words, words[1:])
+               if b & Status.MOTION_DONE and not a & Status.MOTION_DONE) == 1
+    p.spin_for_messages(5)
+    assert abs(p.ref_log[-1][1] - target) < 1e-12
+    assert abs(p.load_position() - target) <= 3 * COUNT
+
+
+def test_target_outside_soft_limits_sets_limit(slide, axis):
+    p = axis
+    ref_before = p.ref_log[-1][1]
+    for outside in (0.6, -0.6):
+        mark = p.publish_target(outside)
+        assert p.wait_status(lambda s: s & Status.LIMIT), repr(p.word)
+        assert not any(w & Status.MOVING for w in p.words_since(mark))
+        p.spin_for_messages(20)
+        assert abs(p.ref_log[-1][1] - ref_before) < 1e-12
+    assert p.word & Status.ENABLED
+    p.move_and_wait(far_target(p.position(), 0.002))    # a valid move clears LIMIT
+    assert not p.word & Status.LIMIT
+
+
+def test_malformed_encoders_do_not_kill_the_controller(slide, axis):
+    p = axis
+    assert p.spin_until(lambda: p.pub_encoders.get_subscription_count() > 0, 5.0)
+    stamp = p.get_clock().now().to_msg()
+    bad = [
+        md.joint_state(stamp, ['x_motor', 'x_load'], [1.0]),           # length mismatch
+        md.joint_state(stamp, ['x_motor', 'x_load'], [math.nan, 0.0]),  # NaN counts
+        md.joint_state(stamp, ['x_motor', 'x_load'], [math.inf, 0.0]),  # inf counts
+        md.joint_state(stamp, [], []),                                  # no names
+        md.joint_state(stamp, ['x_motor', 'x_motor'], [1.0, 2.0]),     # duplicates
+        md.joint_state(stamp, ['x_motor'], [12345.0]),                  # one side only
+        md.joint_state(stamp, ['garbage'], [1.0]),                      # unknown joint
+    ]
+    mark = p.mark()
+    for msg in bad:
+        p.pub_encoders.publish(msg)
+    assert wait_log(p, slide.controller_log, 'encoders ignored', 1)
+    assert p.joint_rate() >= MIN_JOINT_RATE
+    assert slide.controller.proc.poll() is None
+    assert not any(w & FAULTS for w in p.words_since(mark)), p.words_since(mark)
+    assert p.word & Status.ENABLED
+    p.move_and_wait(far_target(p.position(), 0.002))
+
+
+# -- 7. diagnostics --------------------------------------------------------------------------------
+def test_diagnostics_report_the_loop_rate(axis):
+    p = axis
+    start = len(p.diag)
+    assert p.spin_until(lambda: len(p.diag) >= start + 3, 5.0), 'no /diagnostics at ~1 Hz'
+    msgs = [m for _, m in p.diag[start:]]
+    periods = [_stamp(b) - _stamp(a) for a, b in zip(msgs, msgs[1:])]
+    assert all(0.8 <= d <= 1.2 for d in periods), periods
+    loop = [s for s in msgs[-1].status if s.name.endswith('servo loop')]
+    assert len(loop) == 1, [s.name for s in msgs[-1].status]
+    values = {kv.key: kv.value for kv in loop[0].values}
+    rate = float(values['rate_hz'])
+    assert 900.0 <= rate <= 1100.0, values
+    p50, p99 = float(values['jitter_p50_us']), float(values['jitter_p99_us'])
+    assert 0.0 <= p50 <= p99 and math.isfinite(p99), values
+    axis_status = [s for s in msgs[-1].status if s.name.endswith('axis x')]
+    assert len(axis_status) == 1
+    assert {kv.key: kv.value for kv in axis_status[0].values}['enabled'] == 'True'
+
+
+# -- 5. clean stop (last: it ends the module's nodes) -------------------------------------------------
+def test_nodes_stop_cleanly_on_sigint(slide):
+    """SIGINT (Ctrl-C) ends both nodes with exit code 0 and no traceback in their output.
+    SIGTERM is covered in test_ros_lifecycle.py."""
+    codes = {'plant': slide.plant.stop(), 'controller': slide.controller.stop()}
+    assert codes == {'plant': 0, 'controller': 0}, codes
+    for log in (slide.plant_log, slide.controller_log):
+        text = log.text()
+        assert 'Traceback' not in text and 'Error' not in text, text[-3000:]
