@@ -28,6 +28,8 @@ EXECUTABLES = {
     'plant': 'motion_ctrl.plant_node:main',
     'notch': 'motion_ctrl.notch:main',
     'demo': 'motion_ctrl.demo:main',
+    'scenarios': 'motion_ctrl.scenarios:main',
+    'tune': 'motion_ctrl.tuning:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

@@ -19,6 +19,8 @@ EXPECTED_EXECUTABLES = {
     'plant': 'motion_ctrl.plant_node:main',
     'notch': 'motion_ctrl.notch:main',
     'demo': 'motion_ctrl.demo:main',
+    'scenarios': 'motion_ctrl.scenarios:main',
+    'tune': 'motion_ctrl.tuning:main',
 }
 LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time'}
 
