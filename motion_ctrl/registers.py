@@ -51,7 +51,7 @@ class Register:
         """Why `value` is refused for this register, or None when it is acceptable."""
         n = self.name
         if self.type == 'double':
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
+            if not isinstance(value, float):      # strict, as ROS is: 2 is not 2.0
                 return f'{n}: expected a floating-point number, got {value!r}'
             return self._check_number(float(value))
         if self.type == 'integer':
@@ -306,15 +306,23 @@ def plant_consistency(v: dict) -> list[str]:
 
 
 # -- generated artefacts: params/*.yaml and the README table ---------------------------------------
+def _yaml_float(value) -> str:
+    """A double that every YAML reader types as one: YAML 1.1 wants a '.' (1e-06 -> 1.0e-06)."""
+    text = repr(float(value))
+    if 'e' in text and '.' not in text.split('e')[0]:
+        text = text.replace('e', '.0e', 1)
+    return text
+
+
 def _yaml_value(reg, value) -> str:
     if reg.type == 'double':
-        return repr(float(value))
+        return _yaml_float(value)
     if reg.type == 'integer':
         return str(int(value))
     if reg.type == 'string':
         return value
     if reg.type == 'double_array':
-        return '[' + ', '.join(repr(float(v)) for v in value) + ']'
+        return '[' + ', '.join(_yaml_float(v) for v in value) + ']'
     return '[' + ', '.join(value) + ']'
 
 
@@ -372,13 +380,33 @@ GENERATED = {
 }
 
 
+README_BLOCKS = {
+    'registers:controller': lambda: markdown_table(AXIS_REGISTERS),
+    'registers:plant': lambda: markdown_table(PLANT_PARAMETERS),
+}
+
+
+def readme_block(text: str, key: str) -> str:
+    """The generated text between `<!-- key -->` and `<!-- /key -->` in README text."""
+    start = text.index(f'<!-- {key} -->\n') + len(f'<!-- {key} -->\n')
+    return text[start:text.index(f'<!-- /{key} -->')]
+
+
+def update_readme(text: str) -> str:
+    for key, make in README_BLOCKS.items():
+        text = text.replace(f'<!-- {key} -->\n{readme_block(text, key)}',
+                            f'<!-- {key} -->\n{make()}')
+    return text
+
+
 def main(argv=None) -> int:
     import argparse
     import pathlib
     ap = argparse.ArgumentParser(description='Print or write what the register table generates.')
     ap.add_argument('--yaml', choices=('controller', 'plant'), help='print a params YAML')
     ap.add_argument('--markdown', choices=('controller', 'plant'), help='print a README table')
-    ap.add_argument('--write', metavar='REPO', help='rewrite params/*.yaml under REPO')
+    ap.add_argument('--write', metavar='REPO',
+                    help='rewrite params/*.yaml and the README tables under REPO')
     a = ap.parse_args(argv)
     if a.yaml:
         print(GENERATED[f'params/{a.yaml}.yaml'](), end='')
@@ -388,6 +416,8 @@ def main(argv=None) -> int:
     if a.write:
         for path, make in GENERATED.items():
             (pathlib.Path(a.write) / path).write_text(make())
+        readme = pathlib.Path(a.write) / 'README.md'
+        readme.write_text(update_readme(readme.read_text()))
     return 0
 
 

@@ -1,0 +1,77 @@
+"""The register table drives the YAML files, the README tables and validation (one place)."""
+import math
+import pathlib
+
+import pytest
+import yaml
+
+from motion_ctrl import registers as R
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
+
+
+@pytest.mark.parametrize('path', sorted(R.GENERATED))
+def test_params_files_are_generated_from_the_table(path):
+    assert (REPO / path).read_text() == R.GENERATED[path](), \
+        f'{path} is stale: run python -m motion_ctrl.registers --write .'
+
+
+def test_readme_tables_are_generated_from_the_table():
+    text = (REPO / 'README.md').read_text()
+    for key, make in R.README_BLOCKS.items():
+        assert R.readme_block(text, key) == make(), \
+            'README register table is stale: run python -m motion_ctrl.registers --write .'
+
+
+def test_controller_yaml_holds_every_register_in_ros2_param_load_format():
+    data = yaml.safe_load((REPO / 'params/controller.yaml').read_text())
+    params = data['controller']['ros__parameters']
+    for reg in R.AXIS_REGISTERS:
+        key = f'x.{reg.name}'
+        if reg.type == 'double_array' and not reg.default:
+            continue            # rcl cannot type an empty list: written as a comment
+        assert key in params, key
+        assert R.CONTROLLER_AXIS[reg.name].check(params[key]) is None
+        if reg.type == 'double':
+            assert isinstance(params[key], float), f'{key} must be written as a double'
+
+
+def test_every_register_documents_unit_and_vendor_source():
+    physical = {r.name for r in R.AXIS_REGISTERS if r.unit}
+    assert {'kp', 'ki', 'kd', 'kvff', 'kaff', 'backlash_distance', 'settling_time'} <= physical
+    for r in R.AXIS_REGISTERS:
+        text = r.descriptor_text()
+        if r.unit:
+            assert f'Unit: {r.unit}.' in text
+        if r.vendor:
+            assert r.vendor in text
+    kp = R.CONTROLLER_AXIS['kp']
+    assert 'V/m' in kp.descriptor_text() and 'Ixx30' in kp.descriptor_text()
+
+
+@pytest.mark.parametrize('name,value,fragment', [
+    ('kp', -1.0, 'kp'),
+    ('kp', math.nan, 'kp'),
+    ('kp', 2, 'kp: expected a floating-point number'),
+    ('fine_position_tolerance', -1e-6, 'fine_position_tolerance'),
+    ('mode', 'position_pd', 'mode: unknown value'),
+    ('notch_d1', 2.5, 'notch_d1'),
+    ('smoothing', 0.001, 'smoothing'),
+    ('leadscrew_table', [0.0, math.inf], 'leadscrew_table[1]'),
+])
+def test_bad_values_are_refused_with_the_register_named(name, value, fragment):
+    reason = R.CONTROLLER_AXIS[name].check(value)
+    assert reason and fragment in reason
+
+
+def test_cross_register_rules():
+    v = R.axis_defaults()
+    assert R.consistency(v) == []
+    bad = v | dict(coarse_position_tolerance=1e-7, fine_position_tolerance=1e-6)
+    assert any('coarse_position_tolerance' in r for r in R.consistency(bad))
+    bad = v | dict(soft_limit_min=0.2, soft_limit_max=0.1)
+    assert any('soft_limit_min' in r for r in R.consistency(bad))
+    bad = v | dict(leadscrew_table=[0.0, 1e-6], leadscrew_table_spacing=0.0)
+    assert any('leadscrew_table_spacing' in r for r in R.consistency(bad))
+    bad = v | dict(notch_n1=0.0, notch_n2=0.0, notch_d1=0.0, notch_d2=1.5)   # unstable poles
+    assert any('notch' in r for r in R.consistency(bad))
