@@ -56,10 +56,11 @@ class ControllerNode(Node):
         self.enc_used = {a: None for a in self.axis_names}
 
         qos = md.SERVO_QOS
-        self.pub_command = self.create_publisher(JointState, md.COMMAND, qos)
-        self.pub_joint = self.create_publisher(JointState, md.JOINT_STATES, qos)
-        self.pub_reference = self.create_publisher(JointState, md.REFERENCE_STATES, qos)
-        self.pub_motor = self.create_publisher(JointState, md.MOTOR_STATES, qos)
+        stream = lambda topic: md.JointStateStream(self.create_publisher(JointState, topic, qos))
+        self.pub_command = stream(md.COMMAND)
+        self.pub_joint = stream(md.JOINT_STATES)
+        self.pub_reference = stream(md.REFERENCE_STATES)
+        self.pub_motor = stream(md.MOTOR_STATES)
         self.pub_status = {a: self.create_publisher(UInt32, md.status_topic(a), md.STATUS_QOS)
                            for a in self.axis_names}
         self.pub_diag = self.create_publisher(DiagnosticArray, md.DIAGNOSTICS, 10)
@@ -212,15 +213,14 @@ class ControllerNode(Node):
             names.append(a)
             outputs.append(out)
         if names:
-            self.pub_command.publish(md.joint_state(stamp, names, effort=outputs))
+            self.pub_command.publish(stamp, names, effort=outputs)
             ax = [self.axes[a] for a in names]
-            self.pub_joint.publish(md.joint_state(
-                stamp, names, [x.load_pos for x in ax], [x.load_vel for x in ax], outputs))
-            self.pub_reference.publish(md.joint_state(
-                stamp, names, [x.command_position for x in ax],
-                [x.profile.velocity for x in ax]))
-            self.pub_motor.publish(md.joint_state(
-                stamp, names, [x.motor_pos for x in ax], [x.motor_vel for x in ax]))
+            self.pub_joint.publish(stamp, names, [x.load_pos for x in ax],
+                                   [x.load_vel for x in ax], outputs)
+            self.pub_reference.publish(stamp, names, [x.command_position for x in ax],
+                                       [x.profile.velocity for x in ax])
+            self.pub_motor.publish(stamp, names, [x.motor_pos for x in ax],
+                                   [x.motor_vel for x in ax])
         for a, axis in self.axes.items():
             s = int(axis.status)
             if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:

@@ -125,10 +125,12 @@ class SlidePlant:
         k, c, b = p['screw_stiffness'], p['screw_damping'], p['backlash']
         mm, ml = self.motor_mass, p['slide_mass']
         brake = p['brake'] == 1
+        # The pitch error changes by nanometres within one step: evaluated once per step.
+        pitch = self.pitch_error(self.x_m)
         for _ in range(n):
             x_m, v_m, x_l, v_l = self.x_m, self.v_m, self.x_l, self.v_l
             # Contact force nut -> slide (positive pushes the slide positive).
-            d = x_m + self.pitch_error(x_m) - x_l
+            d = x_m + pitch - x_l
             dv = v_m - v_l        # pitch-error slope is tiny: its velocity term is neglected
             if d > 0.0:
                 fc = max(0.0, k * d + c * dv)

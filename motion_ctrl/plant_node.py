@@ -37,8 +37,10 @@ class PlantNode(Node):
         self.command_time = None
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
-        self.pub_enc = self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
-        self.pub_truth = self.create_publisher(JointState, md.PLANT_STATES, md.SERVO_QOS)
+        self.pub_enc = md.JointStateStream(
+            self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS))
+        self.pub_truth = md.JointStateStream(
+            self.create_publisher(JointState, md.PLANT_STATES, md.SERVO_QOS))
         self.create_subscription(JointState, md.COMMAND, self._on_command, md.COMMAND_QOS)
         self.last = None
         self.timer = self.create_timer(self.period, self._tick)
@@ -109,8 +111,8 @@ class PlantNode(Node):
             counts += [m, l]
             tpos += [plant.x_m, plant.x_l]
             tvel += [plant.v_m, plant.v_l]
-        self.pub_enc.publish(md.joint_state(stamp, names, counts))
-        self.pub_truth.publish(md.joint_state(stamp, names, tpos, tvel))
+        self.pub_enc.publish(stamp, names, counts)
+        self.pub_truth.publish(stamp, names, tpos, tvel)
 
 
 def main(args=None):
