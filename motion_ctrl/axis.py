@@ -22,6 +22,7 @@ import math
 
 from msg_defs.status import Status
 from motion_ctrl.backlash import BacklashCompensation
+from motion_ctrl.dual_loop import SampledCorrection, feedback_encoders
 from motion_ctrl.profile import Profile
 from motion_ctrl.registers import AXIS_REGISTERS, axis_defaults, consistency
 from motion_ctrl.servo_law import ServoLaw
@@ -38,6 +39,7 @@ class Axis:
         self.profile = Profile(0.0)
         self.settling = Settling()
         self.backlash = BacklashCompensation()
+        self.sampled = SampledCorrection()
         self.r = None
         self.configure(axis_defaults(AXIS_REGISTERS) | (registers or {}))
         self.enabled = False
@@ -56,8 +58,6 @@ class Axis:
         # Sampled dual loop (Galil): motor target = user target + offset.
         self.target = None
         self.sampled_offset = 0.0
-        self.correcting = False
-        self.correction_moves = 0
         self.events = []             # (time, Status word) on every change, for tests and tools
         self.time = 0.0
 
@@ -84,6 +84,8 @@ class Axis:
                                 r['backlash_hysteresis'], r['backlash_table'],
                                 r['backlash_table_spacing'], r['leadscrew_table'],
                                 r['leadscrew_table_spacing'])
+        self.sampled.configure(r['correction_tolerance'], r['correction_max_moves'],
+                               r['load_counts_per_m'], r['settling_time'])
         old = self.r
         self.servo.configure(r)
         self.r = r
@@ -94,18 +96,25 @@ class Axis:
     @property
     def motor_side_loop(self) -> bool:
         """Position loop closed on the motor encoder: compensation applies there only."""
-        return self.r['feedback'] in ('motor', 'sampled')
+        return feedback_encoders(self.r['feedback'])[0] == 'motor'
 
     def _loop_position(self) -> float:
-        return self.load_pos if self.r['feedback'] in ('load', 'dual') else self.motor_pos
+        return self.motor_pos if self.motor_side_loop else self.load_pos
 
     def _loop_velocity(self) -> float:
         return self.load_vel if self.r['feedback'] == 'load' else self.motor_vel
 
     def _half_count(self) -> float:
-        cpm = (self.r['load_counts_per_m'] if self.r['feedback'] in ('load', 'dual')
-               else self.r['motor_counts_per_m'])
+        cpm = self.r['motor_counts_per_m' if self.motor_side_loop else 'load_counts_per_m']
         return 0.5 / cpm
+
+    @property
+    def correcting(self) -> bool:
+        return self.sampled.correcting
+
+    @property
+    def correction_moves(self) -> int:
+        return self.sampled.moves
 
     @property
     def command_position(self) -> float:
@@ -133,10 +142,10 @@ class Axis:
             return False, reason
         self.sticky &= ~Status.LIMIT
         self.target = float(target)
-        self.correcting = False
-        self.correction_moves = 0
         self.profile.move_to(self.target + self.sampled_offset)
         self.settling.start_position_move(self.target + self.sampled_offset)
+        if self.r['feedback'] == 'sampled':
+            self.sampled.start()
         return True, ''
 
     def jog(self, velocity: float):
@@ -146,7 +155,7 @@ class Axis:
         if reason:
             return False, reason
         self.target = None
-        self.correcting = False
+        self.sampled.cancel()
         self.profile.jog(float(velocity))
         self.settling.start_velocity_move(float(velocity))
         return True, ''
@@ -155,7 +164,7 @@ class Axis:
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
-        self.correcting = False
+        self.sampled.cancel()
         self.profile.stop(self.r['stop_deceleration' if kind == 'stop' else 'estop_deceleration'])
         self.settling.start_stop(kind)
         return True, ''
@@ -196,13 +205,14 @@ class Axis:
             return False, f'{self.name}: a move is in progress'
         if self.target is None:
             self.target = self.command_position
-        self.correction_moves = 0
-        return self._start_correction(force=True)
+        self.sampled.start_now()
+        self.settling.start_position_move(self.target + self.sampled_offset)
+        return True, ''
 
     # -- internals ------------------------------------------------------------------------------
     def _open_loop(self):
         self.enabled = False
-        self.correcting = False
+        self.sampled.cancel()
         self.servo.reset()
         self.output = 0.0
 
@@ -217,22 +227,11 @@ class Axis:
         self.servo.reset()
         self.target = None
 
-    def _start_correction(self, force=False):
-        """Galil sampled dual loop: V1 = load error; move the motor by it from where it is."""
-        load_error = self.target - self.load_pos
-        cpm = self.r['load_counts_per_m']
-        if (round(abs(load_error) * cpm) < round(self.r['correction_tolerance'] * cpm)
-                or self.correction_moves >= self.r['correction_max_moves']):
-            self.correcting = False
-            return False, '' if not force else f'{self.name}: within correction_tolerance'
-        self.correction_moves += 1
-        self.correcting = True
-        # New motor command = actual motor position + load error (V2 = V1 − TE, PR V2).
-        motor_actual = self.motor_pos - self.correction
-        self.sampled_offset = motor_actual + load_error - self.target
+    def _correct_by(self, v2: float) -> None:
+        """A sampled correction move: PR V2 on the motor, relative to its command."""
+        self.sampled_offset += v2
         self.profile.move_to(self.target + self.sampled_offset)
         self.settling.start_position_move(self.target + self.sampled_offset)
-        return True, ''
 
     def home(self, motor_counts: int, load_counts: int) -> None:
         """First feedback: take the encoders as they are and close the loop there."""
@@ -314,14 +313,28 @@ class Axis:
         bits = self.settling.update(dt, command_position=p.position, command_velocity=p.velocity,
                                     profile_done=p.done, actual_position=self.actual_pos
                                     + self.sampled_offset, actual_velocity=self.actual_vel)
-        if r['feedback'] == 'sampled' and self.target is not None and \
-                bits & Status.MOTION_DONE and self.settling.mode == 'position':
-            if self._start_correction()[0]:
-                bits = self.settling.bits
-        if self.correcting:
-            bits &= ~(Status.MOTION_DONE | Status.IN_FINE_POSITION)
+        if r['feedback'] == 'sampled' and self.target is not None:
+            bits = self._sampled_step(dt, motor_counts, load_counts, bits)
         self._compose_status(bits)
         return out
+
+    def _sampled_step(self, dt, motor_counts, load_counts, bits) -> Status:
+        """Galil's #CORRECT after each move; MOTION_DONE only when the load is there."""
+        s = self.sampled
+        load_error = self.target - self.load_pos
+        v2 = s.update(dt, profile_done=self.profile.done,
+                      motor_settled=bool(bits & Status.MOTION_DONE),
+                      motor_counts=int(motor_counts),
+                      load_error_counts=round(load_error * self.r['load_counts_per_m']),
+                      motor_error=self.following_error, load_error=load_error)
+        if v2 is not None:
+            self._correct_by(v2)
+            bits = self.settling.bits
+        if s.phase in (s.MOVING, s.CORRECTING):
+            bits &= ~(Status.MOTION_DONE | Status.IN_FINE_POSITION)
+        elif s.done:
+            bits |= Status.MOTION_DONE | Status.IN_FINE_POSITION
+        return bits
 
     def _update_actual(self):
         if self.motor_side_loop:

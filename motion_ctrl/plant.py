@@ -10,7 +10,7 @@ encoder on the slide. Modelled:
   nut from the ideal screw position, so a leadscrew table has something real to correct;
 * backlash: gap `backlash` between the nut and the slide flanks; in contact the coupling is a
   spring-damper (`screw_stiffness`, `screw_damping`) — with the two masses this is the
-  mechanical resonance (~200 Hz by default); out of contact no force passes;
+  mechanical resonance (~240 Hz by default); out of contact no force passes;
 * slide: mass, viscous + Coulomb friction with stiction, end stops (stiff walls), a brake;
 * encoders quantised to counts (floor, as a quadrature counter reads between edges).
 

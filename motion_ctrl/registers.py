@@ -123,13 +123,13 @@ AXIS_REGISTERS = (
     _r('load_counts_per_m', 'double', LOAD_COUNTS_PER_M, 'counts/m',
        'Load (linear) encoder counts per metre.', 'Galil auxiliary encoder', min=0.0,
        min_exclusive=True),
-    _r('kp', 'double', 22627.4, 'V/m', 'Proportional gain.', 'PMAC Ixx30, Galil KP', min=0.0),
-    _r('ki', 'double', 362038.7, 'V/(m·s)', 'Integral gain.', 'PMAC Ixx33, Galil KI', min=0.0),
+    _r('kp', 'double', 16000.0, 'V/m', 'Proportional gain.', 'PMAC Ixx30, Galil KP', min=0.0),
+    _r('ki', 'double', 181019.3, 'V/(m·s)', 'Integral gain.', 'PMAC Ixx33, Galil KI', min=0.0),
     _r('kd', 'double', 160.0, 'V·s/m', 'Derivative gain, on the actual velocity of the '
        'velocity-loop encoder (PMAC form; set kvff = kd for derivative of error).',
        'PMAC Ixx31, Galil KD', min=0.0),
     _r('kvff', 'double', 161.06, 'V·s/m', 'Velocity feedforward.', 'PMAC Ixx32', min=0.0),
-    _r('kaff', 'double', 0.5972, 'V·s²/m', 'Acceleration feedforward.', 'PMAC Ixx35', min=0.0),
+    _r('kaff', 'double', 0.5966, 'V·s²/m', 'Acceleration feedforward.', 'PMAC Ixx35', min=0.0),
     _r('friction_ff', 'double', 0.0, 'V', 'Friction feedforward, added by the sign of the '
        'commanded velocity (0 at rest).', 'PMAC Ixx68', min=0.0, max=10.0),
     _r('bias', 'double', 0.0, 'V', 'Constant output offset (closed loop only).',
@@ -178,7 +178,7 @@ AXIS_REGISTERS = (
        'PMAC DEFINE COMP', min=0.0),
     _r('max_velocity', 'double', 0.1, 'm/s', 'Move velocity limit.', 'Galil SP, PMAC Ixx16',
        min=0.0, min_exclusive=True),
-    _r('max_acceleration', 'double', 2.0, 'm/s²', 'Move acceleration limit.',
+    _r('max_acceleration', 'double', 1.5, 'm/s²', 'Move acceleration limit.',
        'Galil AC/DC, PMAC Ixx17', min=0.0, min_exclusive=True),
     _r('max_jerk', 'double', 0.0, 'm/s³', 'Move jerk limit (0 = trapezoid).', 'PMAC Ixx19..21 '
        'S-curve', min=0.0),
@@ -204,8 +204,9 @@ AXIS_REGISTERS = (
        'corrections stop when the load encoder error is below this (1 count: only an exact '
        'reading ends them).', 'Galil example: |V2| < 2 linear counts',
        min=0.0, min_exclusive=True),
-    _r('correction_max_moves', 'integer', 20, 'count', 'Sampled dual loop: most correction moves '
-       'per move.', '', min=0, max=100),
+    _r('correction_max_moves', 'integer', 50, 'count', 'Sampled dual loop: most correction moves '
+       'per move (a reversal inside the gap can take one per count of backlash).', '',
+       min=0, max=1000),
 )
 
 CONTROLLER_AXIS = {r.name: r for r in AXIS_REGISTERS}
@@ -254,8 +255,8 @@ PLANT_PARAMETERS = (
        min_exclusive=True),
     _r('backlash', 'double', 20 * INCH / 10000, 'm', 'Gap between nut and slide flanks '
        '(20 linear counts).', min=0.0),
-    _r('screw_stiffness', 'double', 6.8e6, 'N/m', 'Axial stiffness of screw, nut and coupling '
-       'in contact: with the two masses it sets the mechanical resonance (~200 Hz).',
+    _r('screw_stiffness', 'double', 1.0e7, 'N/m', 'Axial stiffness of screw, nut and coupling '
+       'in contact: with the two masses it sets the mechanical resonance (~240 Hz).',
        min=0.0, min_exclusive=True),
     _r('screw_damping', 'double', 200.0, 'N·s/m', 'Damping of that compliance.', min=0.0),
     _r('torque_constant', 'double', 0.1, 'N·m/A', 'Motor torque constant.', min=0.0,
@@ -269,8 +270,8 @@ PLANT_PARAMETERS = (
     _r('motor_stiction', 'double', 0.0045, 'N·m', 'Motor breakaway friction (>= coulomb).',
        min=0.0),
     _r('slide_viscous', 'double', 50.0, 'N·s/m', 'Slide viscous friction.', min=0.0),
-    _r('slide_coulomb', 'double', 20.0, 'N', 'Slide Coulomb friction.', min=0.0),
-    _r('slide_stiction', 'double', 21.0, 'N', 'Slide breakaway friction (>= coulomb).', min=0.0),
+    _r('slide_coulomb', 'double', 10.0, 'N', 'Slide Coulomb friction.', min=0.0),
+    _r('slide_stiction', 'double', 10.5, 'N', 'Slide breakaway friction (>= coulomb).', min=0.0),
     _r('pitch_error_slope', 'double', 2.0e-4, 'm/m', 'Cumulative lead error of the screw '
        '(nut position gains this much per metre of motor travel).', min=-0.01, max=0.01),
     _r('pitch_error_amplitude', 'double', 2.54e-6, 'm', 'Periodic lead error amplitude.',

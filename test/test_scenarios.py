@@ -65,9 +65,11 @@ def test_robust_to_a_different_slide():
     rows = {r.name: r for r in scenarios.table(plant, only=(
         'dual', 'motor + backlash comp', 'motor, no compensation'))}
     assert abs(rows['dual'].error_counts) <= 1.0 and rows['dual'].done_ms is not None
-    # The compensation covers 20 of the 40 counts of backlash now.
-    assert rows['motor, no compensation'].error_counts >= 35
-    assert 15 <= rows['motor + backlash comp'].error_counts <= 25
+    # The compensation covers 20 of the 40 counts of backlash now, and the heavier slide
+    # coasts into the gap as the motor decelerates: motor + compensation is well out of its
+    # 3-count band, uncompensated worse still.
+    assert rows['motor, no compensation'].error_counts >= 20
+    assert rows['motor + backlash comp'].error_counts >= 5
 
 
 def test_scenarios_command_prints_the_table(capsys):

@@ -1,0 +1,101 @@
+"""Galil's two ways to position a slide behind a backlash with a linear encoder.
+
+* Dual loop (DMC-40x0 DV1): the position loop (KP, KI) closes on the load encoder, the damping
+  (KD) on the motor encoder. That is only a choice of encoders per term: `feedback_encoders`.
+* Sampled dual loop (manual example #DUALOOP / #CORRECT, seed 001): move on the motor encoder,
+  wait for motion complete, read the linear-encoder error V1 and the motor's own error TE, and
+  correct by V2 = V1 − TE until |V2| < 2 linear counts:
+
+      #CORRECT  AMX              wait for motion completion
+                V1=10000-_DEX    linear encoder error
+                V2=-_TEX/4+V1    compensate for the motor error (4 rotary counts per linear)
+                JP#END,@ABS[V2]<2
+                PR V2*4; BGX; JP#CORRECT
+
+  "Motion complete" here is the profile finished and the motor loop settled (RMP criteria on
+  the motor encoder), or, when stiction keeps the motor loop from settling, the motor encoder
+  still (within one count) for STILL_FACTOR settling times: the slide is read at rest, and the
+  −TE term takes care of a motor that stopped short of its command.
+  The sequence ends when |V1| < correction_tolerance (the load is where it should be) or after
+  correction_max_moves.
+"""
+from __future__ import annotations
+
+
+def feedback_encoders(feedback: str) -> tuple[str, str]:
+    """(position-loop encoder, velocity-loop encoder) for a `feedback` register value."""
+    return {'motor': ('motor', 'motor'), 'load': ('load', 'load'),
+            'dual': ('load', 'motor'), 'sampled': ('motor', 'motor')}[feedback]
+
+
+STILL_FACTOR = 5
+
+
+class SampledCorrection:
+    """The #CORRECT loop as a state machine stepped every servo tick."""
+
+    IDLE, MOVING, CORRECTING, DONE = 'idle', 'moving', 'correcting', 'done'
+
+    def __init__(self):
+        self.phase = self.IDLE
+        self.moves = 0
+        self.exhausted = False        # ended by correction_max_moves, not by the tolerance
+        self._still_ref = None
+        self._still_time = 0.0
+        self.tolerance_counts = 1
+        self.max_moves = 20
+        self.settle_time = 0.02
+
+    def configure(self, tolerance: float, max_moves: int, load_counts_per_m: float,
+                  settle_time: float) -> None:
+        # Compare in whole counts, as Galil does: the encoder error is an integer.
+        self.tolerance_counts = max(1, round(tolerance * load_counts_per_m))
+        self.max_moves = max_moves
+        self.settle_time = settle_time
+
+    def start(self) -> None:
+        """A new move began: its end will be followed by corrections."""
+        self.phase, self.moves, self.exhausted = self.MOVING, 0, False
+        self._still_ref = None
+
+    def start_now(self) -> None:
+        """`<axis>/correct`: run the correction loop from where the axis is."""
+        self.phase, self.moves, self.exhausted = self.CORRECTING, 0, False
+        self._still_ref = None
+
+    def cancel(self) -> None:
+        self.phase = self.IDLE
+
+    @property
+    def correcting(self) -> bool:
+        return self.phase == self.CORRECTING
+
+    @property
+    def done(self) -> bool:
+        return self.phase == self.DONE
+
+    def update(self, dt: float, *, profile_done: bool, motor_settled: bool, motor_counts: int,
+               load_error_counts: int, motor_error: float, load_error: float):
+        """One tick. Returns V2 [m] to add to the motor command when a correction move is due,
+        else None."""
+        if self.phase not in (self.MOVING, self.CORRECTING):
+            return None
+        if not profile_done:
+            self._still_ref = None
+            return None
+        if self._still_ref is None or abs(motor_counts - self._still_ref) > 1:
+            self._still_ref, self._still_time = motor_counts, 0.0
+        else:
+            self._still_time += dt
+        if not motor_settled and self._still_time + 1e-9 < STILL_FACTOR * self.settle_time:
+            return None
+        if abs(load_error_counts) < self.tolerance_counts:
+            self.phase = self.DONE
+            return None
+        if self.moves >= self.max_moves:
+            self.phase, self.exhausted = self.DONE, True
+            return None
+        self.moves += 1
+        self.phase = self.CORRECTING
+        self._still_ref = None
+        return load_error - motor_error          # V2 = V1 − TE
