@@ -67,6 +67,7 @@ class ServoLaw:
         # Last two inputs / outputs fed to / returned by the notch, to predict its next output
         # (`_notch_peek`) without stepping it: the saturation test needs the output first.
         self._hist = (0.0, 0.0, 0.0, 0.0)
+        self._nc = (1.0, 0.0, 0.0, 0.0, 0.0)
         self.integral = 0.0          # PID integrator output [V]; I-PD: CO
         self.co = 0.0                # I-PD controller output state [V]
         self.prev_act = None         # I-PD: previous actual position (or velocity)
@@ -79,6 +80,9 @@ class ServoLaw:
 
     def configure(self, r: dict) -> None:
         self.notch.configure(r['notch_n1'], r['notch_n2'], r['notch_d1'], r['notch_d2'])
+        n1, n2, d1, d2 = self.notch.coefficients
+        g = self.notch.numerator_gain
+        self._nc = (g, g * n1, g * n2, d1, d2)
         if self.r is not None and r['mode'] != self.r['mode']:
             self.reset()             # a new control law starts from rest (bumpless from 0)
         self.r = r
@@ -97,10 +101,9 @@ class ServoLaw:
     def _notch_peek(self, x: float) -> float:
         """What `self.notch.step(x)` would return, without advancing it (same difference
         equation, from the history this object fed it)."""
-        n1, n2, d1, d2 = self.notch.coefficients
-        g = self.notch.numerator_gain
+        g, b1, b2, a1, a2 = self._nc
         x1, x2, y1, y2 = self._hist
-        return g * (x + n1 * x1 + n2 * x2) - d1 * y1 - d2 * y2
+        return g * x + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2
 
     def _notch_step(self, x: float) -> float:
         y = self.notch.step(x)
@@ -151,13 +154,15 @@ class ServoLaw:
                 loop = r['kp'] * error - r['kd'] * vel_loop_vel
             else:
                 loop = r['kp'] * error - r['kd'] * vel_loop_acc
-            # No integration while the output saturates (PMAC Ixx69): test this tick's output.
-            if abs(finish(self._notch_peek(loop + i_new + feedforward))) >= limit:
+            # No integration while the output saturates (PMAC Ixx69): test this tick's output
+            # with the integration before committing it (when there is one to test).
+            if i_new != i_old and abs(finish(self._notch_peek(loop + i_new + feedforward))) \
+                    >= limit:
                 i_new = i_old
                 held = True
             self.integral = i_new
-            self.integrator_held = held
-            out = self._notch_step(loop + i_new + feedforward)
+            out = finish(self._notch_step(loop + i_new + feedforward))
+            self.integrator_held = held or abs(out) >= limit
         else:
             # I-PD, incremental: the state CO carries I, P and D together.
             meas = act_pos if position_mode else act_vel
@@ -182,9 +187,8 @@ class ServoLaw:
                 held = True
             self.co = self.integral = co_clamped
             self.integrator_held = held
-            out = self._notch_step(self.co + feedforward)
+            out = finish(self._notch_step(self.co + feedforward))
 
-        out = finish(out)
         self.saturated = abs(out) >= limit
         out = _clamp(out, -limit, limit)
         self.output = out
