@@ -3,7 +3,7 @@ PMAC / Galil / RMC servo interrupt.
 
 Each tick (`update`):
  1. read both encoders, estimate velocities over the real dt (rcl timers skip late ticks);
- 2. step the profile (move generator + Galil IT smoothing);
+ 2. step the profile (move generator + Galil IT smoothing); a jog is kept inside the soft limits;
  3. backlash / leadscrew compensation (PMAC Ixx85..87, BLCOMP, COMP) on loops that close on the
     motor encoder; hidden from the reported position;
  4. pick the feedback: motor, load, dual (Galil DV: position on the load, damping on the motor)
@@ -15,20 +15,96 @@ Each tick (`update`):
 Commands (`move_to`, `jog`, `stop`, ...) return (accepted, reason): a refused one changes nothing
 but the LIMIT bit where SPEC.md says so. The axis starts with the loop closed at the position the
 encoders report on the first tick (PMAC Ixx80 = 1, power-on enable).
+
+Motion commands and the status word (RMP semantics, see motion_ctrl.settling):
+
+* `move_to(target)`: point-to-point move; during a move it re-plans on the fly from the present
+  commanded position, velocity and acceleration (no step in any of them).
+* `jog(velocity)`: velocity move, clamped to ±max_velocity; 0 decelerates to rest (MOTION_DONE).
+* `stop()` / `stop('estop')`: decelerate at stop_deceleration / estop_deceleration; STOPPED /
+  ESTOPPED + MOTION_DONE at rest. `abort()`: loop open at once, output 0 from this very moment,
+  ENABLED cleared, ABORTED + MOTION_DONE.
+* `enable(False)` opens the loop (output 0, MOTION_DONE: nothing is being moved); `enable(True)`
+  closes it at the present position; `reset()` clears FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT and
+  LIMIT, and on an open loop ABORTED; the loop stays open until `enable(True)`.
+
+Soft limits (soft_limit_min / soft_limit_max, on the commanded position in the user's frame):
+
+* a target outside them is refused with a reason and the LIMIT bit; the axis is not disturbed
+  (a move in progress continues to its old target);
+* a jog never commands a position past them: while the profile moves toward a limit, each tick
+  compares the distance left with the distance needed to stop at max_acceleration (jerk-limited
+  if max_jerk > 0); when they meet, the jog becomes a position move to the limit, cruising no
+  faster than the jog and braking at max_acceleration, so the command stops exactly at the
+  limit (LIMIT raised, then AT_TARGET / IN_FINE_POSITION / MOTION_DONE at the limit as for any
+  position move). A jog toward a limit the command already sits on is refused (LIMIT);
+* a STOP / ESTOP or jog-to-zero whose deceleration would carry the command past a limit brakes
+  to the limit instead (at estop_deceleration if that is what it takes; LIMIT raised).
+  Should even estop_deceleration not suffice (limits changed under a moving axis), the command
+  passes the limit and comes back to it.
+
+The per-tick path works on values cached at configure time and on plain-int status bits
+(IntFlag arithmetic costs ~1 µs an operation); a Status object is built once per distinct word.
 """
 from __future__ import annotations
 
 import math
+import numbers
 
 from msg_defs.status import Status
 from motion_ctrl.backlash import BacklashCompensation
 from motion_ctrl.dual_loop import SampledCorrection, feedback_encoders
 from motion_ctrl.profile import Profile
-from motion_ctrl.registers import AXIS_REGISTERS, axis_defaults, consistency
+from motion_ctrl.registers import AXIS_REGISTERS, CONTROLLER_AXIS, axis_defaults, consistency
 from motion_ctrl.servo_law import ServoLaw
-from motion_ctrl.settling import Settling
+from motion_ctrl.settling import Settling, status_word
 
-_STICKY = Status.LIMIT
+# Status bits as plain ints for the servo tick.
+_ENABLED = int(Status.ENABLED)
+_MOVING = int(Status.MOVING)
+_IN_FINE = int(Status.IN_FINE_POSITION)
+_DONE = int(Status.MOTION_DONE)
+_FE_WARNING = int(Status.FOLLOWING_ERROR_WARNING)
+_FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
+_SATURATED = int(Status.OUTPUT_SATURATED)
+_INTEGRATOR_HELD = int(Status.INTEGRATOR_HELD)
+_BACKLASH = int(Status.BACKLASH_ACTIVE)
+_FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
+_LIMIT = int(Status.LIMIT)
+_CORRECTING = int(Status.CORRECTING)
+_LATCHED = int(Status.STOPPED | Status.ESTOPPED | Status.ABORTED)
+
+_S_MOVING = SampledCorrection.MOVING
+_S_CORRECTING = SampledCorrection.CORRECTING
+_S_DONE = SampledCorrection.DONE
+
+# ruckig's extrema carry float residue; a limit is "passed" only by more than this [m].
+_LIMIT_EPS = 1e-9
+
+
+def _number(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def stopping_distance(speed: float, acceleration: float, max_acceleration: float,
+                      max_jerk: float) -> float:
+    """Distance [m] to rest from `speed` (>= 0) with `acceleration` along the motion (> 0 =
+    speeding up), braking at max_acceleration, jerk-limited at max_jerk (0 = trapezoid).
+
+    Exact for the trapezoid; with a jerk limit an acceleration still speeding up is first
+    ramped to 0 (speed + a²/2j, travelled at that speed: an upper bound)."""
+    a_max = max_acceleration
+    if max_jerk <= 0.0:
+        return speed * speed / (2.0 * a_max)
+    j = max_jerk
+    extra = 0.0
+    if acceleration > 0.0:
+        ramp = acceleration / j
+        speed += acceleration * acceleration / (2.0 * j)
+        extra = speed * ramp
+    if speed * j >= a_max * a_max:
+        return extra + 0.5 * speed * (speed / a_max + a_max / j)
+    return extra + speed * math.sqrt(speed / j)
 
 
 class Axis:
@@ -41,12 +117,13 @@ class Axis:
         self.backlash = BacklashCompensation()
         self.sampled = SampledCorrection()
         self.r = None
-        self.configure(axis_defaults(AXIS_REGISTERS) | (registers or {}))
         self.enabled = False
         self.homed = False           # first feedback seen
-        self.faults = Status(0)      # FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT
-        self.sticky = Status(0)      # LIMIT
-        self.status = Status(0)
+        self._faults = 0             # FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT (int)
+        self._sticky = 0             # LIMIT (int)
+        self._motion = 0             # last motion bits (settling + sampled), int
+        self._word = 0               # status word as an int; `status` is the Status of it
+        self.status = status_word(0)
         self.output = 0.0
         # Encoder state (load units, m) and estimates.
         self.motor_pos = self.load_pos = 0.0
@@ -58,13 +135,14 @@ class Axis:
         # Sampled dual loop (Galil): motor target = user target + offset.
         self.target = None
         self.sampled_offset = 0.0
+        self._guard = 0              # jog direction watched against its soft limit (+1/-1/0)
         self.events = []             # (time, Status word) on every change, for tests and tools
         self.time = 0.0
+        self.configure(axis_defaults(AXIS_REGISTERS) | (registers or {}))
 
     # -- configuration --------------------------------------------------------------------------
     def configure(self, values: dict) -> None:
         """Apply a complete, validated register set at a tick boundary (all or nothing)."""
-        from motion_ctrl.registers import CONTROLLER_AXIS
         for name, value in values.items():
             reason = CONTROLLER_AXIS[name].check(value) if name in CONTROLLER_AXIS else \
                 f'unknown register {name!r}'
@@ -89,24 +167,42 @@ class Axis:
         old = self.r
         self.servo.configure(r)
         self.r = r
-        if old is not None and old['feedback'] != r['feedback'] and self.homed:
+        # What the servo tick needs, derived once here rather than every tick.
+        feedback = r['feedback']
+        self._motor_side = feedback_encoders(feedback)[0] == 'motor'
+        self._vel_on_load = feedback == 'load'
+        self._sampled_fb = feedback == 'sampled'
+        self._motor_cpm = r['motor_counts_per_m']
+        self._load_cpm = r['load_counts_per_m']
+        self._half = 0.5 / (self._motor_cpm if self._motor_side else self._load_cpm)
+        self._fe_fatal = r['following_error_fatal']
+        self._fe_warn = r['following_error_warning']
+        self._soft_lo = r['soft_limit_min']
+        self._soft_hi = r['soft_limit_max']
+        self._max_vel = r['max_velocity']
+        self._max_acc = r['max_acceleration']
+        self._max_jerk = r['max_jerk']
+        self._stop_dec = r['stop_deceleration']
+        self._estop_dec = r['estop_deceleration']
+        if old is not None and old['feedback'] != feedback and self.homed:
             self._rehome_command()
 
     # -- derived -------------------------------------------------------------------------------
     @property
     def motor_side_loop(self) -> bool:
         """Position loop closed on the motor encoder: compensation applies there only."""
-        return feedback_encoders(self.r['feedback'])[0] == 'motor'
+        return self._motor_side
 
-    def _loop_position(self) -> float:
-        return self.motor_pos if self.motor_side_loop else self.load_pos
+    @property
+    def faults(self) -> Status:
+        """FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT: the loop is open until reset."""
+        return status_word(self._faults)
 
-    def _loop_velocity(self) -> float:
-        return self.load_vel if self.r['feedback'] == 'load' else self.motor_vel
-
-    def _half_count(self) -> float:
-        cpm = self.r['motor_counts_per_m' if self.motor_side_loop else 'load_counts_per_m']
-        return 0.5 / cpm
+    @property
+    def sticky(self) -> Status:
+        """LIMIT: a target was refused or a jog stopped at a soft limit (until the next accepted
+        command or reset)."""
+        return status_word(self._sticky)
 
     @property
     def correcting(self) -> bool:
@@ -123,64 +219,107 @@ class Axis:
 
     # -- commands -------------------------------------------------------------------------------
     def _refuse_unless_ready(self):
-        if self.faults:
+        if self._faults:
             return f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset'
         if not self.enabled:
             return f'{self.name}: not enabled'
         return None
 
+    def _refuse_limit(self, reason):
+        """A soft-limit refusal: LIMIT is raised (and shown at once), nothing else changes."""
+        self._sticky |= _LIMIT
+        self._recompose()
+        return False, f'{self.name}: {reason}'
+
     def move_to(self, target: float):
-        if not isinstance(target, (int, float)) or not math.isfinite(target):
+        if not _number(target) or not math.isfinite(target):
             return False, f'{self.name}: target {target!r} is not a finite number'
-        lo, hi = self.r['soft_limit_min'], self.r['soft_limit_max']
+        lo, hi = self._soft_lo, self._soft_hi
         if not lo <= target <= hi:
-            self.sticky |= Status.LIMIT
-            return False, (f'{self.name}: target {target:g} m outside the soft limits '
-                           f'[{lo:g}, {hi:g}]')
+            return self._refuse_limit(f'target {target:g} m outside the soft limits '
+                                      f'[{lo:g}, {hi:g}]')
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
-        self.sticky &= ~Status.LIMIT
-        self.target = float(target)
-        self.profile.move_to(self.target + self.sampled_offset)
-        self.settling.start_position_move(self.target + self.sampled_offset)
-        if self.r['feedback'] == 'sampled':
-            self.sampled.start()
+        try:
+            self._start_move(float(target))
+        except ValueError as e:      # ruckig could not plan it; the previous move goes on
+            return False, f'{self.name}: {e}'
+        self._sticky &= ~_LIMIT
         return True, ''
 
+    def _start_move(self, target: float, max_velocity=None, max_acceleration=None) -> None:
+        """Plan the profile to `target` (user frame) and start its settling (and the sampled
+        corrections); raises ValueError, changing nothing, if the profile refuses."""
+        loop_target = target + self.sampled_offset
+        self.profile.move_to(loop_target, max_velocity, max_acceleration)
+        self.target = target
+        self._guard = 0
+        self.settling.start_position_move(loop_target)
+        if self._sampled_fb:
+            self.sampled.start()
+
     def jog(self, velocity: float):
-        if not isinstance(velocity, (int, float)) or not math.isfinite(velocity):
+        if not _number(velocity) or not math.isfinite(velocity):
             return False, f'{self.name}: velocity {velocity!r} is not a finite number'
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
+        velocity = float(velocity)
+        p = self.profile
+        off = self.sampled_offset
+        if velocity > 0.0 and p.raw_position >= self._soft_hi + off:
+            return self._refuse_limit(f'jog at {velocity:g} m/s refused: the command is at the '
+                                      f'soft limit {self._soft_hi:g} m')
+        if velocity < 0.0 and p.raw_position <= self._soft_lo + off:
+            return self._refuse_limit(f'jog at {velocity:g} m/s refused: the command is at the '
+                                      f'soft limit {self._soft_lo:g} m')
+        try:
+            p.jog(velocity)
+        except ValueError as e:
+            return False, f'{self.name}: {e}'
         self.target = None
         self.sampled.cancel()
-        self.profile.jog(float(velocity))
-        self.settling.start_velocity_move(float(velocity))
+        # Settle against the velocity the profile runs (clamped to ±max_velocity).
+        self.settling.start_velocity_move(p.target_velocity)
+        self._sticky &= ~_LIMIT
+        self._guard = (velocity > 0.0) - (velocity < 0.0)
+        if not self._brake_within_limits(self._max_acc, stop_kind=None) and self._guard:
+            self._guard_tick(self.servo_period)
         return True, ''
 
     def stop(self, kind: str = 'stop'):
+        if kind not in ('stop', 'estop'):
+            return False, f"{self.name}: stop kind must be 'stop' or 'estop', got {kind!r}"
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
+        decel = self._stop_dec if kind == 'stop' else self._estop_dec
+        try:
+            self.profile.stop(decel)
+        except ValueError as e:
+            return False, f'{self.name}: {e}'
         self.sampled.cancel()
-        self.profile.stop(self.r['stop_deceleration' if kind == 'stop' else 'estop_deceleration'])
+        self.target = None           # abandoned: a later `correct` holds where it stopped
+        self._guard = 0
         self.settling.start_stop(kind)
+        self._brake_within_limits(decel, stop_kind=kind)
         return True, ''
 
     def abort(self):
         """Open the loop at once, output 0 (RMP ABORT)."""
         self._open_loop()
         self.settling.abort()
+        self._recompose()
         return True, ''
 
     def enable(self, on: bool):
         if not on:
             self._open_loop()
             self.settling.idle()
+            self._recompose()
             return True, ''
-        if self.faults:
+        if self._faults:
             return False, f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset first'
         if not self.homed:
             return False, f'{self.name}: no encoder feedback yet'
@@ -191,9 +330,15 @@ class Axis:
         return True, ''
 
     def reset(self):
-        """Clear faults (fatal following error, feedback fault); the loop stays open."""
-        self.faults = Status(0)
-        self.sticky = Status(0)
+        """Clear faults (fatal following error, feedback fault) and LIMIT; on an open loop also
+        ABORTED / STOPPED / ESTOPPED. The loop stays open (enable closes it); a closed loop and
+        its motion are not touched. A feedback fault whose cause persists comes back at the
+        next tick."""
+        self._faults = 0
+        self._sticky = 0
+        if not self.enabled:
+            self.settling.idle()
+        self._recompose()
         return True, ''
 
     def correct(self):
@@ -201,7 +346,7 @@ class Axis:
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
-        if not self.profile.done:
+        if self.profile.moving:          # incl. a jog cruising at constant velocity
             return False, f'{self.name}: a move is in progress'
         if self.target is None:
             self.target = self.command_position
@@ -209,23 +354,108 @@ class Axis:
         self.settling.start_position_move(self.target + self.sampled_offset)
         return True, ''
 
+    # -- soft limits for jogs and stops -----------------------------------------------------------
+    def _brake_within_limits(self, decel: float, stop_kind) -> bool:
+        """After a jog / stop plan: if the planned velocity change carries the command past a
+        soft limit, brake to the limit instead. Returns True when it did."""
+        p = self.profile
+        if p.done:
+            return False
+        lo, hi = p.raw_extrema()
+        off = self.sampled_offset
+        start = p.raw_position
+        hi_p, lo_p = self._soft_hi + off, self._soft_lo + off
+        if hi > hi_p + _LIMIT_EPS and start <= hi_p:
+            self._stop_at_limit(hi_p, decel, stop_kind)
+            return True
+        if lo < lo_p - _LIMIT_EPS and start >= lo_p:
+            self._stop_at_limit(lo_p, decel, stop_kind)
+            return True
+        return False
+
+    def _guard_tick(self, dt: float) -> None:
+        """A jog toward a soft limit: turn it into a stop at the limit when the distance left is
+        down to what braking at max_acceleration needs (plus two ticks of travel)."""
+        p = self.profile
+        g = self._guard
+        v = p.raw_velocity * g
+        if v <= 0.0:
+            return                   # not (yet) moving toward the watched limit
+        if g > 0:
+            limit = self._soft_hi + self.sampled_offset
+            left = limit - p.raw_position
+        else:
+            limit = self._soft_lo + self.sampled_offset
+            left = p.raw_position - limit
+        need = stopping_distance(v, p.raw_acceleration * g, self._max_acc, self._max_jerk)
+        if left <= need + 2.0 * v * dt:
+            self._stop_at_limit(limit, self._max_acc, None)
+
+    def _stop_at_limit(self, limit: float, decel: float, stop_kind) -> None:
+        """Re-plan as a position move to the soft limit `limit` (loop frame): cruise no faster
+        than now (or than the jog) and brake at `decel`; if that would pass the limit, at the
+        deceleration it takes (about v²/2d), at most estop_deceleration. A jog becomes that
+        position move (its settling events); a STOP / ESTOP keeps its own (STOPPED / ESTOPPED
+        at rest). LIMIT is raised."""
+        p = self.profile
+        speed = abs(p.raw_velocity)
+        vcap = speed
+        if p.target_velocity:
+            vcap = max(vcap, abs(p.target_velocity))
+        vcap = max(min(vcap, self._max_vel), 1e-9)
+        lo_p, hi_p = self._soft_lo + self.sampled_offset, self._soft_hi + self.sampled_offset
+        left = abs(limit - p.raw_position)
+        hard = max(decel, self._estop_dec)
+        tries = [decel]
+        needed = speed * speed / (2.0 * left) if left > 0.0 else math.inf
+        for factor in (1.02, 1.25):
+            if decel < needed * factor < hard:
+                tries.append(needed * factor)
+        tries.append(hard)
+        planned = False
+        for a in tries:
+            try:
+                p.move_to(limit, vcap, a)
+            except ValueError:
+                continue
+            planned = True
+            lo, hi = p.raw_extrema()
+            if lo >= lo_p - _LIMIT_EPS and hi <= hi_p + _LIMIT_EPS:
+                break
+        self._guard = 0
+        self._sticky |= _LIMIT
+        if not planned:              # ruckig refused both: brake as hard as allowed
+            p.stop(max(decel, self._estop_dec))
+            stop_kind = stop_kind or 'estop'
+            self.settling.start_stop(stop_kind)
+            self.target = None
+            return
+        if stop_kind is None:
+            self.target = limit - self.sampled_offset
+            self.settling.start_position_move(limit)
+            if self._sampled_fb:
+                self.sampled.start()
+
     # -- internals ------------------------------------------------------------------------------
     def _open_loop(self):
         self.enabled = False
         self.sampled.cancel()
         self.servo.reset()
         self.output = 0.0
+        self.target = None
+        self._guard = 0
 
     def _rehome_command(self):
         """Hold the present position without a bump: the command becomes the actual position."""
         self.sampled_offset = 0.0
-        if self.motor_side_loop:
+        if self._motor_side:
             pos = self.motor_pos - self.correction
         else:
             pos = self.load_pos
         self.profile.hold(pos)
         self.servo.reset()
         self.target = None
+        self._guard = 0
 
     def _correct_by(self, v2: float) -> None:
         """A sampled correction move: PR V2 on the motor, relative to its command."""
@@ -234,21 +464,26 @@ class Axis:
         self.settling.start_position_move(self.target + self.sampled_offset)
 
     def home(self, motor_counts: int, load_counts: int) -> None:
-        """First feedback: take the encoders as they are and close the loop there."""
-        r = self.r
-        self.motor_pos = motor_counts / r['motor_counts_per_m']
-        self.load_pos = load_counts / r['load_counts_per_m']
+        """First feedback: take the encoders as they are and close the loop there (unless a
+        fault came first: then it stays open until reset and enable)."""
+        self.motor_pos = motor_counts / self._motor_cpm
+        self.load_pos = load_counts / self._load_cpm
         self.backlash.reset(self.motor_pos)
         self.correction = 0.0
         self.homed = True
-        self.enabled = True
         self._rehome_command()
-        self.settling.idle()
+        if not self._faults:
+            self.enabled = True
+            self.settling.idle()
 
     def feedback_fault(self) -> None:
-        if self.enabled or not self.faults & Status.FEEDBACK_FAULT:
+        if self.enabled or not self._faults & _FEEDBACK_FAULT:
+            was_enabled = self.enabled
             self._open_loop()
-            self.faults |= Status.FEEDBACK_FAULT
+            self._faults |= _FEEDBACK_FAULT
+            if was_enabled:
+                self.settling.abort()    # the fault action: whatever moved is abandoned
+            self._recompose()
 
     # -- the servo tick -------------------------------------------------------------------------
     def update(self, dt: float, motor_counts, load_counts, sample_dt: float | None = None
@@ -259,106 +494,131 @@ class Axis:
         None = dt (sampled in step with the loop), 0 = no new sample since the last tick (the
         velocity estimates are kept rather than read as a stop).
         """
-        r = self.r
         self.time += dt
         if not self.homed:
             self.home(motor_counts, load_counts)
         if sample_dt is None:
             sample_dt = dt
         if sample_dt > 0.0:
-            motor_pos = motor_counts / r['motor_counts_per_m']
-            load_pos = load_counts / r['load_counts_per_m']
+            motor_pos = motor_counts / self._motor_cpm
+            load_pos = load_counts / self._load_cpm
             motor_vel = (motor_pos - self.motor_pos) / sample_dt
             load_vel = (load_pos - self.load_pos) / sample_dt
             self.motor_acc = (motor_vel - self.motor_vel) / sample_dt
             self.load_acc = (load_vel - self.load_vel) / sample_dt
-            self.motor_pos, self.load_pos = motor_pos, load_pos
-            self.motor_vel, self.load_vel = motor_vel, load_vel
+            self.motor_pos = motor_pos
+            self.load_pos = load_pos
+            self.motor_vel = motor_vel
+            self.load_vel = load_vel
 
         if not self.enabled:
-            # Loop open: the command follows the actual position so closing it is bumpless.
-            self.profile.hold(self._loop_position() - (self.correction if self.motor_side_loop
-                                                       else 0.0))
-            self.output = 0.0
-            self._update_actual()
-            self._compose_status(self.settling.bits & (Status.MOTION_DONE | Status.ABORTED
-                                                       | Status.STOPPED | Status.ESTOPPED))
-            return 0.0
+            return self._update_open()
 
-        self.profile.step(dt)
         p = self.profile
-        if self.motor_side_loop:
-            self.correction = self.backlash.step(p.position, dt)
-        loop_cmd = p.position + (self.correction if self.motor_side_loop else 0.0)
-        self._update_actual()
-        fe = loop_cmd - self._loop_position()
+        p.step(dt)
+        if self._guard:
+            self._guard_tick(dt)
+        position = p.position
+        velocity = p.velocity
+        offset = self.sampled_offset
+        if self._motor_side:
+            correction = self.correction = self.backlash.step(position, dt)
+            loop_cmd = position + correction
+            loop_pos = self.motor_pos
+            actual_pos = loop_pos - correction - offset
+        else:
+            loop_cmd = position
+            loop_pos = actual_pos = self.load_pos
+        if self._vel_on_load:
+            actual_vel = self.load_vel
+            loop_acc = self.load_acc
+        else:
+            actual_vel = self.motor_vel
+            loop_acc = self.motor_acc
+        self.actual_pos = actual_pos
+        self.actual_vel = actual_vel
+        fe = loop_cmd - loop_pos
         self.following_error = fe
-        fatal = r['following_error_fatal']
+        fatal = self._fe_fatal
         if fatal > 0.0 and abs(fe) > fatal:
             self._open_loop()
-            self.faults |= Status.FOLLOWING_ERROR_FATAL
+            self._faults |= _FE_FATAL
             self.settling.abort()
-            self._compose_status(Status.MOTION_DONE)
+            self._compose(_DONE | (self.settling._bits & _LATCHED))
             return 0.0
 
-        target_stopped = p.velocity == 0.0 and not p.moving
         out = self.servo.update(
-            dt, cmd_pos=loop_cmd, cmd_vel=p.velocity, cmd_acc=p.acceleration,
-            act_pos=self._loop_position(), act_vel=self._loop_velocity(),
-            vel_loop_vel=self.motor_vel if r['feedback'] != 'load' else self.load_vel,
-            vel_loop_acc=self.motor_acc if r['feedback'] != 'load' else self.load_acc,
-            target_stopped=target_stopped, half_count=self._half_count())
+            dt, cmd_pos=loop_cmd, cmd_vel=velocity, cmd_acc=p.acceleration,
+            act_pos=loop_pos, act_vel=actual_vel, vel_loop_vel=actual_vel, vel_loop_acc=loop_acc,
+            target_stopped=velocity == 0.0 and not p.moving, half_count=self._half)
         self.output = out
 
-        bits = self.settling.update(dt, command_position=p.position, command_velocity=p.velocity,
-                                    profile_done=p.done, actual_position=self.actual_pos
-                                    + self.sampled_offset, actual_velocity=self.actual_vel)
-        if r['feedback'] == 'sampled' and self.target is not None:
-            bits = self._sampled_step(dt, motor_counts, load_counts, bits)
-        self._compose_status(bits)
+        bits = self.settling.step(dt, position, velocity, p.done, actual_pos + offset,
+                                  actual_vel)
+        if self._sampled_fb and self.target is not None:
+            bits = self._sampled_step(dt, motor_counts, bits)
+        self._compose(bits)
         return out
 
-    def _sampled_step(self, dt, motor_counts, load_counts, bits) -> Status:
+    def _update_open(self) -> float:
+        """Loop open: the command follows the actual position so closing it is bumpless."""
+        if self._motor_side:
+            self.profile.hold(self.motor_pos - self.correction)
+            self.actual_pos = self.motor_pos - self.correction - self.sampled_offset
+            self.actual_vel = self.motor_vel
+        else:
+            self.profile.hold(self.load_pos)
+            self.actual_pos = self.load_pos
+            self.actual_vel = self.load_vel if self._vel_on_load else self.motor_vel
+        self.output = 0.0
+        self._compose(_DONE | (self.settling._bits & _LATCHED))
+        return 0.0
+
+    def _sampled_step(self, dt, motor_counts, bits: int) -> int:
         """Galil's #CORRECT after each move; MOTION_DONE only when the load is there."""
         s = self.sampled
         load_error = self.target - self.load_pos
         v2 = s.update(dt, profile_done=self.profile.done,
-                      motor_settled=bool(bits & Status.MOTION_DONE),
+                      motor_settled=bool(bits & _DONE),
                       motor_counts=int(motor_counts),
-                      load_error_counts=round(load_error * self.r['load_counts_per_m']),
+                      load_error_counts=round(load_error * self._load_cpm),
                       motor_error=self.following_error, load_error=load_error)
         if v2 is not None:
             self._correct_by(v2)
-            bits = self.settling.bits
-        if s.phase in (s.MOVING, s.CORRECTING):
-            bits &= ~(Status.MOTION_DONE | Status.IN_FINE_POSITION)
-        elif s.done:
-            bits |= Status.MOTION_DONE | Status.IN_FINE_POSITION
+            bits = self.settling._bits
+        phase = s.phase
+        if phase == _S_MOVING or phase == _S_CORRECTING:
+            bits &= ~(_DONE | _IN_FINE)
+        elif phase == _S_DONE:
+            bits |= _DONE | _IN_FINE
         return bits
 
-    def _update_actual(self):
-        if self.motor_side_loop:
-            self.actual_pos = self.motor_pos - self.correction - self.sampled_offset
-        else:
-            self.actual_pos = self.load_pos
-        self.actual_vel = self._loop_velocity()
-
-    def _compose_status(self, motion_bits: Status) -> None:
-        s = Status(motion_bits) | self.faults | self.sticky
-        r = self.r
+    def _recompose(self) -> None:
+        """The status word again after a command changed the state between ticks."""
         if self.enabled:
-            s |= Status.ENABLED
-            w = r['following_error_warning']
+            self._compose(self._motion)
+        else:
+            self._compose(_DONE | (self.settling._bits & _LATCHED))
+
+    def _compose(self, motion_bits: int) -> None:
+        self._motion = motion_bits
+        s = motion_bits | self._faults | self._sticky
+        if self.enabled:
+            s |= _ENABLED
+            w = self._fe_warn
             if w > 0.0 and abs(self.following_error) > w:
-                s |= Status.FOLLOWING_ERROR_WARNING
-            if self.servo.saturated:
-                s |= Status.OUTPUT_SATURATED
-            if self.servo.integrator_held:
-                s |= Status.INTEGRATOR_HELD
-            if self.correcting:
-                s |= Status.CORRECTING | Status.MOVING
-        if self.motor_side_loop and self.backlash.active:
-            s |= Status.BACKLASH_ACTIVE
-        if s != self.status:
-            self.events.append((self.time, s))
-        self.status = s
+                s |= _FE_WARNING
+            servo = self.servo
+            if servo.saturated:
+                s |= _SATURATED
+            if servo.integrator_held:
+                s |= _INTEGRATOR_HELD
+            if self.sampled.phase == _S_CORRECTING:
+                s |= _CORRECTING | _MOVING
+        if self._motor_side and self.backlash.active:
+            s |= _BACKLASH
+        if s != self._word:
+            self._word = s
+            word = status_word(s)
+            self.status = word
+            self.events.append((self.time, word))

@@ -124,14 +124,30 @@ class Profile:
         self._f_dt = None
 
     # ---------------------------------------------------------------- commands
-    def move_to(self, target: float) -> None:
-        """Point-to-point move to `target`, planned from the current raw state."""
+    def move_to(self, target: float, max_velocity=None, max_acceleration=None) -> None:
+        """Point-to-point move to `target`, planned from the current raw state.
+
+        max_velocity / max_acceleration override the configured limits for this move only
+        (the axis uses them to turn a jog into a stop at a soft limit: cruise no faster than
+        the jog, brake at the deceleration available). On a refusal nothing changes.
+        """
         if not _finite(target):
             raise ValueError(f'move target must be finite, got {target!r}')
         self._require_configured()
+        vmax = self.max_velocity
+        if max_velocity is not None:
+            if not (_finite(max_velocity) and max_velocity > 0):
+                raise ValueError(f'max_velocity override must be finite and > 0, '
+                                 f'got {max_velocity!r}')
+            vmax = float(max_velocity)
+        amax = self.max_acceleration
+        if max_acceleration is not None:
+            if not (_finite(max_acceleration) and max_acceleration > 0):
+                raise ValueError(f'max_acceleration override must be finite and > 0, '
+                                 f'got {max_acceleration!r}')
+            amax = float(max_acceleration)
         target = float(target)
-        self._plan(ControlInterface.Position, target, 0.0,
-                   self.max_acceleration)
+        self._plan(ControlInterface.Position, target, 0.0, amax, vmax)
         self.kind = 'position'
         self.target = target
         self.target_velocity = None
@@ -230,6 +246,14 @@ class Profile:
         if self.kind == 'stop' and self._raw_done and self._settled:
             self.kind = 'idle'
 
+    def raw_extrema(self):
+        """(min, max) raw position over the current segment, from the state it was planned
+        in to its end (ruckig's exact extrema); a jog cruises on beyond its segment."""
+        if self._raw_done:
+            return self.raw_position, self.raw_position
+        ext = self._traj.position_extrema[0]
+        return ext.min, ext.max
+
     # -------------------------------------------------------------- properties
     @property
     def done(self) -> bool:
@@ -271,7 +295,8 @@ class Profile:
         self._settled = True
         self._seg_velocity = 0.0
 
-    def _plan(self, interface, target_position, target_velocity, max_acceleration):
+    def _plan(self, interface, target_position, target_velocity, max_acceleration,
+              max_velocity=None):
         """Plan a new segment from the current raw state; on error change nothing."""
         inp = self._inp
         inp.control_interface = interface
@@ -282,8 +307,10 @@ class Profile:
         inp.target_velocity = [target_velocity]
         inp.target_acceleration = [0.0]
         # Velocity moves ignore max_velocity; a placeholder keeps stop() usable unconfigured.
-        inp.max_velocity = [self.max_velocity if self.max_velocity is not None
-                            else abs(self.raw_velocity) + 1.0]
+        if max_velocity is None:
+            max_velocity = (self.max_velocity if self.max_velocity is not None
+                            else abs(self.raw_velocity) + 1.0)
+        inp.max_velocity = [max_velocity]
         inp.max_acceleration = [max_acceleration]
         # ruckig rejects jerk 0 ("zero limits conflict"); inf is its trapezoid.
         inp.max_jerk = [self.max_jerk if self.max_jerk > 0.0 else _INF]
