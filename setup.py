@@ -30,6 +30,8 @@ EXECUTABLES = {
     'demo': 'motion_ctrl.demo:main',
     'scenarios': 'motion_ctrl.scenarios:main',
     'tune': 'motion_ctrl.tuning:main',
+    'record': 'motion_ctrl.record:main',
+    'report': 'motion_ctrl.report:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

@@ -21,6 +21,8 @@ EXPECTED_EXECUTABLES = {
     'demo': 'motion_ctrl.demo:main',
     'scenarios': 'motion_ctrl.scenarios:main',
     'tune': 'motion_ctrl.tuning:main',
+    'record': 'motion_ctrl.record:main',
+    'report': 'motion_ctrl.report:main',
 }
 LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time'}
 
