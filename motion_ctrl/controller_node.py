@@ -6,6 +6,13 @@ parameter and changes nothing) and staged in the post-set callback; the next ser
 everything staged at once, so several parameters set in one call take effect together.
 Parameter services and the timer share the node's default callback group: they never run
 concurrently, no lock is needed.
+
+With `use_sim_time` the servo tick is driven by the encoder samples instead of a timer (like a
+drive synchronised to its fieldbus cycle): each new sample, stamped in sim time, is one tick, and
+the command carries the sample's stamp. With the plant in lockstep this makes a scenario
+deterministic. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
+clock is applied at the first tick at or after that stamp (a coordinated start of several axes,
+or a move at an exact sim time); other targets apply at once.
 """
 from __future__ import annotations
 
@@ -30,6 +37,7 @@ from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_G
                                    CONTROLLER_GLOBAL, consistency)
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
+MAX_SCHEDULE = 10.0      # s: a target stamped further ahead is not a schedule but another clock
 
 
 class ControllerNode(Node):
@@ -74,12 +82,23 @@ class ControllerNode(Node):
         self.last_status_time = {a: -math.inf for a in self.axis_names}
         self.stats = LoopStats(self.period)
         self.last_tick = None
-        self.timer = self.create_timer(self.period, self._tick)
+        self.scheduled = []          # (stamp [s], axis, target) of targets stamped ahead
+        self.sim_time = self.get_parameter('use_sim_time').value
+        # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
+        self.timer = None if self.sim_time else self.create_timer(self.period,
+                                                                  lambda: self._tick())
         self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}')
 
     # -- parameters -----------------------------------------------------------------------------
+    def set_parameters_atomically(self, parameter_list):
+        # Fix: the parameter services (`ros2 param set`, set_parameters and
+        # set_parameters_atomically) all land here; name the parameter in rclpy's
+        # wrong-type refusal (ros_params.name_type_refusal).
+        return ros_params.name_type_refusal(
+            self, parameter_list, super().set_parameters_atomically(parameter_list))
+
     def _split(self, name):
         axis, _, reg = name.partition('.')
         if axis in self.axes and reg in CONTROLLER_AXIS:
@@ -138,11 +157,13 @@ class ControllerNode(Node):
             self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        recv = self.get_clock().now().nanoseconds * 1e-9
+        recv = stamp if self.sim_time else self.get_clock().now().nanoseconds * 1e-9
         for a in self.axis_names:
             m, l = counts.get(md.motor_joint(a)), counts.get(md.load_joint(a))
             if m is not None and l is not None:
                 self.enc[a] = (int(m), int(l), stamp, recv)
+        if self.sim_time and (self.last_tick is None or stamp > self.last_tick):
+            self._tick(msg.header.stamp)
 
     def _targets(self, msg, field, what):
         try:
@@ -152,7 +173,16 @@ class ControllerNode(Node):
             return {}
 
     def _on_target_position(self, msg: JointState) -> None:
-        for a, target in self._targets(msg, 'position', 'target_position').items():
+        targets = self._targets(msg, 'position', 'target_position')
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        ahead = stamp - self.get_clock().now().nanoseconds * 1e-9
+        if targets and 0.0 < ahead <= MAX_SCHEDULE:
+            self.scheduled += [(stamp, a, t) for a, t in targets.items()]
+            return
+        self._move(targets)
+
+    def _move(self, targets: dict) -> None:
+        for a, target in targets.items():
             ok, reason = self.axes[a].move_to(target)
             if not ok:
                 self.get_logger().warning(f'target_position refused: {reason}')
@@ -184,10 +214,14 @@ class ControllerNode(Node):
         self.create_service(Trigger, md.service_name(a, 'correct'), trigger(axis.correct))
 
     # -- the servo tick -------------------------------------------------------------------------
-    def _tick(self) -> None:
+    def _tick(self, stamp_msg=None) -> None:
+        """One servo tick: at the timer (real time) or at an encoder sample (sim time)."""
         t_start = time.perf_counter()
-        now_msg = self.get_clock().now()
-        now = now_msg.nanoseconds * 1e-9
+        if stamp_msg is None:
+            stamp = self.get_clock().now().to_msg()
+        else:
+            stamp = stamp_msg
+        now = stamp.sec + stamp.nanosec * 1e-9
         dt = self.period if self.last_tick is None else now - self.last_tick
         self.last_tick = now
         if dt <= 0.0:
@@ -195,13 +229,19 @@ class ControllerNode(Node):
         self.stats.period(dt)
         if self.staged:
             self._apply_staged()
-        stamp = now_msg.to_msg()
+        if self.scheduled:
+            due = [x for x in self.scheduled if x[0] <= now + 1e-9]
+            if due:
+                self.scheduled = [x for x in self.scheduled if x[0] > now + 1e-9]
+                self._move({a: t for _, a, t in due})
         names, outputs = [], []
         for a, axis in self.axes.items():
             enc = self.enc[a]
             if enc is None:
                 continue                 # no feedback yet: the loop stays open, nothing sent
             motor, load, s_stamp, recv = enc
+            if now - recv > self.feedback_timeout and not axis.homed:
+                continue                 # no fresh sample yet since start-up: keep waiting
             if now - recv > self.feedback_timeout:
                 axis.feedback_fault()
                 out = axis.update(dt, motor, load, sample_dt=0.0)
@@ -209,6 +249,7 @@ class ControllerNode(Node):
                 prev = self.enc_used[a]
                 sample_dt = None if prev is None else s_stamp - prev
                 self.enc_used[a] = s_stamp
+                self.stats.feedback_age(now - s_stamp)
                 out = axis.update(dt, motor, load, sample_dt=sample_dt)
             names.append(a)
             outputs.append(out)

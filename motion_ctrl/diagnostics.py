@@ -16,7 +16,8 @@ class LoopStats:
         self.nominal = period
         self.periods = np.empty(capacity)
         self.works = np.empty(capacity)
-        self.n = self.nw = 0
+        self.ages = np.empty(capacity)
+        self.n = self.nw = self.na = 0
         self.overruns_total = 0
 
     def period(self, dt: float) -> None:
@@ -33,6 +34,12 @@ class LoopStats:
             self.works[self.nw] = seconds
             self.nw += 1
 
+    def feedback_age(self, seconds: float) -> None:
+        """Age of the encoder sample a tick used (its stamp to the tick): the feedback latency."""
+        if self.na < len(self.ages):
+            self.ages[self.na] = seconds
+            self.na += 1
+
     def summary(self) -> dict:
         p = self.periods[:self.n]
         w = self.works[:self.nw]
@@ -47,10 +54,12 @@ class LoopStats:
             'tick_work_mean_us': float(w.mean() * 1e6) if len(w) else 0.0,
             'tick_work_max_us': float(w.max() * 1e6) if len(w) else 0.0,
             'overruns_total': self.overruns_total,
-        }
+        } | ({'feedback_age_p50_us': float(np.percentile(self.ages[:self.na], 50) * 1e6),
+              'feedback_age_p99_us': float(np.percentile(self.ages[:self.na], 99) * 1e6)}
+             if self.na else {})
 
     def reset_window(self) -> None:
-        self.n = self.nw = 0
+        self.n = self.nw = self.na = 0
 
 
 def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict):

@@ -4,12 +4,21 @@ Subscribes `command` (amplifier volts per axis), integrates `motion_ctrl.plant.S
 the real elapsed time on every tick of its own timer, and publishes `encoders` (raw counts) and
 `plant_states` (ground truth). Like an amplifier behind a PMAC watchdog, a command older than
 COMMAND_TIMEOUT is treated as 0 V.
+
+Lockstep (`lockstep: 1`): the plant is the clock. It publishes `/clock`, `encoders` and
+`plant_states` at sim time t, waits for the controller's command stamped t (the controller,
+with use_sim_time, ticks on each encoder sample), integrates exactly one period with it, and
+repeats: a scenario gives bit-identical results run after run, as fast as the two processes can
+exchange messages. Until the first command arrives (discovery), the t = 0 sample is repeated.
 """
 from __future__ import annotations
 
 import sys
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock as ClockMsg
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 
@@ -28,6 +37,7 @@ class PlantNode(Node):
         g = {r.name: ros_params.declare(self, r, r.name) for r in PLANT_GLOBALS}
         self.axis_names = list(g['axes'])
         self.period = 1.0 / g['publish_rate']
+        self.lockstep = g['lockstep'] == 1
         self.plants: dict[str, SlidePlant] = {}
         for a in self.axis_names:
             values = {r.name: ros_params.declare(self, r, f'{a}.{r.name}')
@@ -43,12 +53,27 @@ class PlantNode(Node):
             self.create_publisher(JointState, md.PLANT_STATES, md.SERVO_QOS))
         self.create_subscription(JointState, md.COMMAND, self._on_command, md.COMMAND_QOS)
         self.last = None
-        self.timer = self.create_timer(self.period, self._tick)
+        if self.lockstep:
+            self.period_ns = round(self.period * 1e9)
+            self.sim_ns = 0
+            self.pub_clock = self.create_publisher(ClockMsg, md.CLOCK, 10)
+            # Repeat the t = 0 sample on the wall clock until the controller answers.
+            self.timer = self.create_timer(0.05, self._lockstep_announce,
+                                           clock=Clock(clock_type=ClockType.STEADY_TIME))
+        else:
+            self.timer = self.create_timer(self.period, self._tick)
         p = next(iter(self.plants.values()))
         self.get_logger().info(
             f'backlash slide for axes {self.axis_names}: resonance {p.resonance_hz:.0f} Hz, '
             f'backlash {p.params["backlash"] * 1e6:.1f} um, publishing at '
             f'{1 / self.period:g} Hz')
+
+    def set_parameters_atomically(self, parameter_list):
+        # Fix: the parameter services (`ros2 param set`, set_parameters and
+        # set_parameters_atomically) all land here; name the parameter in rclpy's
+        # wrong-type refusal (ros_params.name_type_refusal).
+        return ros_params.name_type_refusal(
+            self, parameter_list, super().set_parameters_atomically(parameter_list))
 
     def _split(self, name):
         axis, _, reg = name.partition('.')
@@ -87,8 +112,29 @@ class PlantNode(Node):
         except md.MalformedMessage as e:
             self.get_logger().warning(f'command ignored: {e}', throttle_duration_sec=1.0)
             return
+        if self.lockstep:
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if stamp_ns != self.sim_ns:
+                return                      # an answer to an older sample
+            if self.timer is not None:
+                self.timer.cancel()         # the controller is there: lockstep from now on
+                self.timer = None
+            self.volts.update(volts)
+            for a, plant in self.plants.items():
+                plant.step(self.volts[a], self.period_ns * 1e-9)
+            self.sim_ns += self.period_ns
+            self._lockstep_publish()
+            return
         self.volts.update(volts)
         self.command_time = self.get_clock().now().nanoseconds * 1e-9
+
+    def _lockstep_announce(self) -> None:
+        self._lockstep_publish()
+
+    def _lockstep_publish(self) -> None:
+        stamp = Time(nanoseconds=self.sim_ns).to_msg()
+        self.pub_clock.publish(ClockMsg(clock=stamp))
+        self.publish(stamp)
 
     def _tick(self) -> None:
         now_msg = self.get_clock().now()

@@ -25,6 +25,17 @@ def params_dir() -> pathlib.Path:
 def _default_sigint():
     # A process started in the background of a non-interactive shell inherits SIGINT ignored.
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    # Fix: when the starting process dies without stop() (a killed or timed-out test run, a
+    # crashed demo) its nodes ran on as orphans, loading the machine and publishing on the
+    # domain forever. Linux: the kernel sends the node SIGTERM (a clean stop) when its parent
+    # dies. (The signal follows the thread that started the node: start nodes from a thread
+    # that outlives them, as the demo and tests do.)
+    if sys.platform.startswith('linux'):
+        try:
+            import ctypes
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
 
 
 class NodeProcess:
@@ -37,8 +48,13 @@ class NodeProcess:
             args += ['-p', f'{k}:={v}']
         self.args = args
         self.log = open(log_path, 'w') if log_path else subprocess.DEVNULL
+        if env is None:
+            # The nodes run the same code as this process (a source tree or an install).
+            env = os.environ.copy()
+            root = str(pathlib.Path(__file__).resolve().parent.parent)
+            env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
-                                     env=env or os.environ.copy(), preexec_fn=_default_sigint)
+                                     env=env, preexec_fn=_default_sigint)
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGINT, wait; SIGKILL only if it does not stop. Returns the exit code."""

@@ -1,0 +1,248 @@
+"""Benchmark: what a servo tick costs and how well the loop holds its rate, measured here.
+
+Sections (each prints a small table; paste the output into the README with the machine):
+
+* core   — cost per servo tick of the ROS-free core: Profile.step + Settling.update, and a
+           whole Axis.update at rest and moving (in-process, no DDS).
+* floor  — period jitter of a bare Python sleep loop and of a bare rclpy timer doing nothing
+           (the machine's floor: the VM's scheduler sets it, not this code).
+* dds    — plant and controller as two processes over real DDS at 1 kHz and 2 kHz for 1, 6 and
+           64 axes: achieved servo rate, period jitter p50/p99/max and work per tick (from the
+           controller's /diagnostics), controller CPU per tick (/proc), feedback age at the tick
+           (encoder stamp -> use) and command transport (command stamp -> arrival here).
+* lockstep — sim seconds per wall second of the deterministic lockstep simulation.
+
+Speed is measured here, never asserted in a test.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+
+import numpy as np
+
+
+def _pct(values, q):
+    return float(np.percentile(np.asarray(values), q)) if len(values) else float('nan')
+
+
+# -- core ----------------------------------------------------------------------------------------
+def bench_core(n: int = 20000) -> list[tuple[str, float]]:
+    from motion_ctrl.axis import Axis
+    from motion_ctrl.profile import Profile
+    from motion_ctrl.registers import axis_defaults
+    from motion_ctrl.settling import Settling
+    r = axis_defaults()
+    rows = []
+
+    def per_tick(fn, count=n):
+        t = time.perf_counter()
+        for i in range(count):
+            fn(i)
+        return (time.perf_counter() - t) / count * 1e6
+
+    p = Profile(0.0)
+    p.configure(r['max_velocity'], r['max_acceleration'], 20.0, 0.1, 1e-3)
+    s = Settling()
+    s.configure(r['fine_position_tolerance'], r['coarse_position_tolerance'],
+                r['velocity_tolerance'], r['settling_time'])
+
+    def profile_settling(i):
+        if i % 1000 == 0:                     # a new 1-inch move every second, both ways
+            tgt = 0.0254 if (i // 1000) % 2 == 0 else 0.0
+            p.move_to(tgt)
+            s.start_position_move(tgt)
+        p.step(1e-3)
+        s.update(1e-3, command_position=p.position, command_velocity=p.velocity,
+                 profile_done=p.done, actual_position=p.position, actual_velocity=p.velocity)
+    rows.append(('Profile.step + Settling.update (jerk-limited, IT smoothing, moving)',
+                 per_tick(profile_settling)))
+
+    a = Axis('x', r)
+    a.home(0, 0)
+    rows.append(('Axis.update at rest', per_tick(lambda i: a.update(1e-3, 0, 0))))
+    b = Axis('x', r)
+    b.home(0, 0)
+
+    def moving(i):
+        if i % 1000 == 0:
+            b.move_to(0.0254 if (i // 1000) % 2 == 0 else 0.0)
+        pos = b.profile.position
+        b.update(1e-3, int(pos * r['motor_counts_per_m']), int(pos * r['load_counts_per_m']))
+    rows.append(('Axis.update moving (servo law, profile, settling, status)', per_tick(moving)))
+    return rows
+
+
+# -- floor ---------------------------------------------------------------------------------------
+def bench_sleep_floor(rate: float, seconds: float = 3.0) -> dict:
+    period = 1.0 / rate
+    n = int(seconds * rate)
+    stamps = np.empty(n)
+    nxt = time.perf_counter()
+    for i in range(n):
+        nxt += period
+        delay = nxt - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        stamps[i] = time.perf_counter()
+    dt = np.diff(stamps)
+    jitter = np.abs(dt - period) * 1e6
+    return {'rate_hz': len(dt) / dt.sum(), 'jitter_p50_us': _pct(jitter, 50),
+            'jitter_p99_us': _pct(jitter, 99), 'jitter_max_us': float(jitter.max())}
+
+
+def bench_rclpy_floor(rate: float, seconds: float = 3.0) -> dict:
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.experimental import EventsExecutor
+    node = Node('bench_floor')
+    stamps = []
+    node.create_timer(1.0 / rate, lambda: stamps.append(time.perf_counter()))
+    ex = EventsExecutor()
+    ex.add_node(node)
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        ex.spin_once(timeout_sec=0.05)
+    ex.shutdown()
+    node.destroy_node()
+    dt = np.diff(np.array(stamps))
+    jitter = np.abs(dt - 1.0 / rate) * 1e6
+    return {'rate_hz': len(dt) / dt.sum(), 'jitter_p50_us': _pct(jitter, 50),
+            'jitter_p99_us': _pct(jitter, 99), 'jitter_max_us': float(jitter.max())}
+
+
+# -- dds -----------------------------------------------------------------------------------------
+def _cpu_seconds(pid: int) -> float:
+    with open(f'/proc/{pid}/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+
+    import msg_defs as md
+    from motion_ctrl.client import SlideClient
+    from motion_ctrl.processes import start_slide
+
+    axes = [f'a{i}' for i in range(n_axes)] if n_axes > 1 else ['x']
+    axes_param = '[' + ','.join(axes) + ']'
+    # Many axes: integrate the physics at the servo rate only, so the plant keeps up; the
+    # controller's loop is what is measured.
+    substep = 20000.0 if n_axes <= 6 else rate
+    plant, controller = start_slide(
+        {'axes': axes_param, 'servo_rate': float(rate)},
+        {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep})
+    client = SlideClient(axes=axes, name='bench_client')
+    diags, transport = [], []
+    client.create_subscription(DiagnosticArray, md.DIAGNOSTICS, diags.append, 10)
+
+    def on_command(msg):
+        now = client.get_clock().now().nanoseconds * 1e-9
+        transport.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
+    client.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_QOS)
+    try:
+        if not client.wait_ready(30.0):
+            return {'error': 'nodes did not come up'}
+        client.spin_until(lambda: False, 1.5)          # let the loop settle in
+        diags.clear()
+        transport.clear()
+        cpu0, t0 = _cpu_seconds(controller.proc.pid), time.monotonic()
+        client.spin_until(lambda: False, seconds)
+        cpu1, t1 = _cpu_seconds(controller.proc.pid), time.monotonic()
+    finally:
+        client.destroy_node()
+        for n in (controller, plant):
+            n.stop()
+    loops = []
+    for arr in diags:
+        for st in arr.status:
+            if st.name.endswith('servo loop'):
+                loops.append({kv.key: kv.value for kv in st.values})
+    if not loops:
+        return {'error': 'no diagnostics'}
+    f = lambda k: statistics.median(float(d[k]) for d in loops if k in d)
+    ticks = f('rate_hz') * (t1 - t0)
+    return {
+        'rate_hz': f('rate_hz'), 'rate_pct': 100 * f('rate_hz') / rate,
+        'jitter_p50_us': f('jitter_p50_us'), 'jitter_p99_us': f('jitter_p99_us'),
+        'jitter_max_us': max(float(d['jitter_max_us']) for d in loops),
+        'work_us': f('tick_work_mean_us'),
+        'cpu_us_per_tick': (cpu1 - cpu0) / ticks * 1e6 if ticks else float('nan'),
+        'cpu_pct': 100 * (cpu1 - cpu0) / (t1 - t0),
+        'feedback_age_p50_us': f('feedback_age_p50_us') if 'feedback_age_p50_us' in loops[0]
+        else float('nan'),
+        'command_transport_p50_us': _pct(transport, 50) * 1e6,
+        'command_transport_p99_us': _pct(transport, 99) * 1e6,
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description='Measure motion_ctrl servo-loop performance.')
+    ap.add_argument('--sections', default='core,floor,dds,lockstep',
+                    help='comma-separated subset of core,floor,dds,lockstep')
+    ap.add_argument('--seconds', type=float, default=5.0, help='per DDS measurement')
+    a = ap.parse_args(argv)
+    sections = a.sections.split(',')
+    print(f'motion_ctrl benchmark — {platform.processor() or platform.machine()}, '
+          f'{os.cpu_count()} CPUs, Python {platform.python_version()}, {platform.system()} '
+          f'{platform.release()}')
+    if 'core' in sections:
+        print('\n## core (per servo tick, one axis, no ROS)\n')
+        print('| what | µs per tick |\n|---|---:|')
+        for name, us in bench_core():
+            print(f'| {name} | {us:.1f} |')
+    ros = [s for s in sections if s in ('floor', 'dds', 'lockstep')]
+    if ros:
+        from motion_ctrl import ros_env
+        ros_env.private_domain()
+        import rclpy
+        rclpy.init()
+    if 'floor' in sections:
+        print('\n## floor (the machine: period jitter of loops that do nothing)\n')
+        print('| loop | rate [Hz] | jitter p50 [µs] | p99 [µs] | max [µs] |\n|---|---:|---:|---:|---:|')
+        for rate in (1000.0, 2000.0):
+            for name, fn in (('time.sleep loop', bench_sleep_floor),
+                             ('rclpy timer, EventsExecutor', bench_rclpy_floor)):
+                r = fn(rate)
+                print(f'| {name} @ {rate:g} Hz | {r["rate_hz"]:.1f} | {r["jitter_p50_us"]:.0f} | '
+                      f'{r["jitter_p99_us"]:.0f} | {r["jitter_max_us"]:.0f} |')
+    if 'dds' in sections:
+        print('\n## dds (plant + controller as two processes)\n')
+        print('| servo rate | axes | achieved [Hz] | % of nominal | jitter p50 / p99 / max [µs] '
+              '| work per tick [µs] | controller CPU per tick [µs] (CPU %) | '
+              'command transport p50 / p99 [µs] |\n|---:|---:|---:|---:|---|---:|---|---|')
+        for rate in (1000.0, 2000.0):
+            for n in (1, 6, 64):
+                r = bench_dds(rate, n, a.seconds)
+                if 'error' in r:
+                    print(f'| {rate:g} | {n} | {r["error"]} | | | | | |')
+                    continue
+                print(f'| {rate:g} | {n} | {r["rate_hz"]:.1f} | {r["rate_pct"]:.1f} | '
+                      f'{r["jitter_p50_us"]:.0f} / {r["jitter_p99_us"]:.0f} / '
+                      f'{r["jitter_max_us"]:.0f} | {r["work_us"]:.0f} | '
+                      f'{r["cpu_us_per_tick"]:.0f} ({r["cpu_pct"]:.0f} %) | '
+                      f'{r["command_transport_p50_us"]:.0f} / {r["command_transport_p99_us"]:.0f} |')
+    if 'lockstep' in sections:
+        try:
+            from motion_ctrl.lockstep import bench_lockstep
+        except ImportError:
+            print('\n## lockstep: not available')
+        else:
+            print('\n## lockstep\n')
+            r = bench_lockstep()
+            print(f'sim seconds per wall second: {r:.2f}')
+    if ros:
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
