@@ -21,6 +21,7 @@ EXPECTED_EXECUTABLES = {
     'demo': 'motion_ctrl.demo:main',
     'scenarios': 'motion_ctrl.scenarios:main',
     'tune': 'motion_ctrl.tuning:main',
+    'benchmark': 'motion_ctrl.benchmark:main',
     'record': 'motion_ctrl.record:main',
     'report': 'motion_ctrl.report:main',
 }
