@@ -309,7 +309,11 @@ def run(node_class, args=None) -> int:
                                   InvalidParameterValueException, ParameterException)
     from rclpy.signals import SignalHandlerOptions
     ros_env.local_discovery()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override
+        print(f'{node_class.__name__}: bad arguments: {str(e).splitlines()[0]}', file=sys.stderr)
+        return 2
     try:
         node = node_class()
     except (InvalidParameterValueException, InvalidParameterTypeException,
