@@ -34,3 +34,12 @@ def rclpy_session():
     yield rclpy
     if owned:
         rclpy.try_shutdown()
+
+
+@pytest.fixture(scope='session')
+def node_env():
+    """Environment for node processes tests start: this run's ROS domain and discovery range
+    (set above) and the source tree first on the path, like this process."""
+    env = os.environ.copy()
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (REPO_ROOT, env.get('PYTHONPATH')) if p)
+    return env

@@ -21,7 +21,10 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+try:                                                   # half the CPU of SingleThreaded here
+    from rclpy.experimental import EventsExecutor as ProbeExecutor  # noqa: E402
+except ImportError:                                    # rclpy before Jazzy 7.1.4
+    from rclpy.executors import SingleThreadedExecutor as ProbeExecutor  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rcl_interfaces.msg import ParameterType  # noqa: E402
@@ -31,7 +34,7 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
 from motion_ctrl.client import SlideClient  # noqa: E402
-from motion_ctrl.processes import start_slide  # noqa: E402
+from motion_ctrl.processes import NodeProcess, params_dir  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
@@ -41,14 +44,15 @@ except ImportError:
 
 INCH = 0.0254
 COUNT = 2.54e-6                 # one linear (load encoder) count [m]
-MAX_VELOCITY = 0.1              # defaults of params/controller.yaml
-STOP_DECELERATION = 2.0
-ESTOP_DECELERATION = 10.0
-# The default 20 ms encoder watchdog trips when this 2-core VM is loaded by other test runs (the
-# test process itself spins 2 kHz of messages); the tests are about the ROS interface, so the
-# watchdog is widened for them. FEEDBACK_FAULT itself is covered by the unit tests.
-FEEDBACK_TIMEOUT = 0.2
-MIN_JOINT_RATE = 800.0          # Hz of joint_states seen here ("~1 kHz")
+# On this 2-core VM, loaded by parallel runs, a node process can stall for 100-250 ms (measured:
+# gaps in the plant's own encoder stamps). The default 20 ms encoder watchdog then opens the loop
+# (FEEDBACK_FAULT); these tests are about the ROS interface, so it is widened to 0.1 s here
+# (FEEDBACK_FAULT itself is unit-tested). Not more: on stale feedback the loop winds up and the
+# plant then integrates a saturated command, so a wide watchdog turns a stall into a runaway.
+# The fatal following error stays at its default for the same reason; the `axis` fixture
+# repairs a fault a stall caused, so one stall costs one test, not the module.
+ROBUST_PARAMS = {'feedback_timeout': 0.1}
+MIN_JOINT_RATE = 500.0          # Hz: joint_states received here over ~1 s, stalls included
 
 FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
 
@@ -74,11 +78,14 @@ class Probe(SlideClient):
                                  lambda m: self.diag.append((time.monotonic(), m)), 10)
         self.pub_encoders = self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
         self.params = AsyncParameterClient(self, 'controller')
+        self.plant_params = AsyncParameterClient(self, 'plant')
         self.axis_services = {
             name: self.create_client(SetBool if kind == 'SetBool' else Trigger,
                                      md.service_name(axis, name))
             for name, kind in md.SERVICES.items()}
-        self._executor = SingleThreadedExecutor()
+        # The probe shares 2 cores with two 1 kHz nodes: the lighter executor keeps the loop's
+        # latency down (measured: EventsExecutor 25 % CPU, SingleThreaded 54 % for 3 streams).
+        self._executor = ProbeExecutor()
         self._executor.add_node(self)
 
     # -- subscriptions ---------------------------------------------------------------------------
@@ -87,6 +94,18 @@ class Probe(SlideClient):
         i = list(msg.name).index(self.axis)
         self.joint_log.append((_stamp(msg), msg.position[i], msg.velocity[i], msg.effort[i]))
         self.joint_count += 1
+
+    def _on_status(self, axis, msg):
+        super()._on_status(axis, msg)
+        self.status_count = getattr(self, 'status_count', 0) + 1
+
+    def _on_truth(self, msg):
+        super()._on_truth(msg)
+        self.truth_velocity = dict(zip(msg.name, msg.velocity))
+
+    def slide_at_rest(self) -> bool:
+        v = getattr(self, 'truth_velocity', {}).get(md.load_joint(self.axis))
+        return v is not None and abs(v) < 1e-4
 
     def _on_reference(self, msg):
         i = list(msg.name).index(self.axis)
@@ -109,10 +128,28 @@ class Probe(SlideClient):
             f'joint_states stopped: {self.joint_count - start} of {n} in {timeout} s'
         return list(self.joint_log)[-(self.joint_count - start):]
 
-    def joint_rate(self, n: int = 300) -> float:
-        """Rate of joint_states [Hz] over the next n samples, from their stamps."""
-        samples = self.spin_for_messages(n)
-        return (len(samples) - 1) / (samples[-1][0] - samples[0][0])
+    def joint_rate(self, n: int = 1000) -> tuple:
+        """(median period [s], mean rate [Hz]) of the next n joint_states, from their stamps:
+        the median shows the loop's period, the mean that (nearly) all arrive."""
+        stamps = [s[0] for s in self.spin_for_messages(n, timeout=2.0 + n / 1000)]
+        periods = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        return periods[len(periods) // 2], (len(stamps) - 1) / (stamps[-1] - stamps[0])
+
+    def assert_loop_running(self, n: int = 1000) -> None:
+        median, rate = self.joint_rate(n)
+        assert 0.9e-3 <= median <= 1.1e-3 and rate >= MIN_JOINT_RATE, \
+            f'joint_states: median period {median * 1e3:.3f} ms, {rate:.0f} Hz; ' \
+            f'{self.loop_note()}'
+
+    def samples_after(self, stamp: float, n: int = 50, timeout: float = 2.0) -> list:
+        """The first n joint_states stamped after `stamp` (ROS time [s])."""
+        def fresh():
+            return [s for s in self.joint_log if s[0] > stamp]
+        assert self.spin_until(lambda: len(fresh()) >= n, timeout), 'joint_states stopped'
+        return fresh()[:n]
+
+    def now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _answer(self, future, timeout=5.0):
         assert self.spin_until(future.done, timeout), 'no answer from the controller'
@@ -155,11 +192,19 @@ class Probe(SlideClient):
         self.pub_target.publish(msg)
         return mark
 
+    def loop_note(self) -> str:
+        """The controller's own last word on its loop rate, for failure messages: a VM too
+        loaded to hold 1 kHz shows here."""
+        if not self.diag:
+            return 'no /diagnostics seen'
+        loop = [s for s in self.diag[-1][1].status if s.name.endswith('servo loop')]
+        return f'last /diagnostics: servo loop {loop[0].message}' if loop else ''
+
     def move_and_wait(self, target: float, timeout: float = 6.0) -> None:
         mark = self.publish_target(target)
         assert self.spin_until(lambda: self.done_since(mark), timeout), (
             f'move to {target} m not done in {timeout} s; status words '
-            f'{[hex(w) for w in self.words_since(mark)]}')
+            f'{[hex(w) for w in self.words_since(mark)]}; {self.loop_note()}')
 
     def position(self) -> float:
         """Load (slide) position from joint_states."""
@@ -208,9 +253,16 @@ def changed(probe: Probe, params: dict):
         assert result.successful, f'restoring {old}: {result.reason}'
 
 
+def on_grid(position: float) -> float:
+    """The nearest whole linear count: only such a target can settle inside the default fine
+    tolerance (1 um < half a count; see test_off_grid_target_settles)."""
+    return round(position / COUNT) * COUNT
+
+
 def far_target(position: float, distance: float) -> float:
-    """A target `distance` away, in whichever direction stays well inside the soft limits."""
-    return position + distance if position + distance < 0.4 else position - distance
+    """A target `distance` away, towards the middle of the travel once beyond 0.2 m (so well
+    inside the soft limits), on the load encoder's grid."""
+    return on_grid(position - distance if position > 0.2 else position + distance)
 
 
 class LogFile:
@@ -245,10 +297,12 @@ class Slide:
 
 
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory):
+def slide(rclpy_session, tmp_path_factory, node_env):
     log_dir = tmp_path_factory.mktemp('slide')
-    plant, controller = start_slide(controller_params={'feedback_timeout': FEEDBACK_TIMEOUT},
-                                    log_dir=log_dir)
+    plant = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path=log_dir / 'plant.log',
+                        env=node_env)
+    controller = NodeProcess('controller_node', params_dir() / 'controller.yaml', ROBUST_PARAMS,
+                             log_path=log_dir / 'controller.log', env=node_env)
     probe = None
     try:
         probe = Probe()
@@ -265,37 +319,51 @@ def slide(rclpy_session, tmp_path_factory):
         controller.stop()
 
 
+def _ready(s: Status) -> bool:
+    return bool(s & Status.ENABLED and s & Status.MOTION_DONE
+                and not s & (Status.MOVING | FAULTS))
+
+
 @pytest.fixture
 def axis(slide):
-    """The probe, with the axis enabled, unfaulted and at rest (repaired if a test left it not)."""
+    """The probe, with the axis enabled, unfaulted and at rest, within +-0.3 m (repaired if a
+    test, or a stall of the VM, left it otherwise)."""
     p = slide.probe
     assert slide.controller.proc.poll() is None, 'controller died:\n' + \
         slide.controller_log.text()[-3000:]
-    if p.word & FAULTS or not p.word & Status.ENABLED:
-        assert p.call('reset').success
-        assert p.call('enable', True).success
-    assert p.wait_status(lambda s: s & Status.ENABLED and s & Status.MOTION_DONE
-                         and not s & (Status.MOVING | FAULTS), 5.0), \
-        f'axis not ready: {p.word!r}'
+    for _ in range(3):
+        if p.wait_status(_ready, 1.0) and abs(p.position()) <= 0.3:
+            return p
+        # Open the loop, let the slide come to rest, clear faults, close the loop there.
+        p.call('abort')
+        p.spin_until(p.slide_at_rest, 3.0)
+        p.call('reset')
+        p.call('enable', True)
+        if p.wait_status(_ready, 3.0) and abs(p.position()) > 0.3:
+            p.publish_target(0.0)
+            p.spin_until(lambda: abs(p.joint_log[-1][1]) < 0.3 and _ready(p.word), 10.0)
+    assert p.wait_status(_ready, 1.0), f'axis not ready: {p.word!r}'
     return p
 
 
-# -- 1. the walking skeleton ------------------------------------------------------------------------
+# -- 1. the walking skeleton -----------------------------------------------------------------------
 def test_move_one_inch_over_dds(slide, axis):
     """A target on target_position moves the simulated slide; the true slide position (plant
     ground truth) ends within 3 linear counts of it and MOTION_DONE follows MOVING."""
     p = axis
     target = INCH if abs(p.position() - INCH) > 1e-3 else 2 * INCH
     n0 = p.joint_count
+    mark = p.mark()
     p.move_and_wait(target, timeout=5.0)
-    p.spin_until(lambda: False, 0.0)
     during = list(p.joint_log)[-(p.joint_count - n0):]
     assert max(abs(e) for *_, e in during) > 0.5, 'no amplifier command during the move'
     # Ground truth from the plant, after the move is reported done.
     p.spin_for_messages(5)
     true_pos = p.load_position()
-    assert abs(true_pos - target) <= 3 * COUNT, \
-        f'slide at {true_pos / COUNT:.1f} counts, target {target / COUNT:.1f}'
+    assert abs(true_pos - target) <= 3 * COUNT, (
+        f'slide at {true_pos / COUNT:.1f} counts, target {target / COUNT:.1f}, joint_states '
+        f'{p.joint_log[-1][1] / COUNT:.1f}; status {[hex(w) for w in p.words_since(mark)]}; '
+        f'{p.loop_note()}')
     msg = p.joint
     assert list(msg.name) == ['x'] and _stamp(msg) > 0.0
     assert abs(msg.position[0] - target) <= 3 * COUNT     # the load encoder as reported
@@ -303,14 +371,33 @@ def test_move_one_inch_over_dds(slide, axis):
     assert not p.word & Status.MOVING
 
 
-# -- 2. parameters through the parameter services ----------------------------------------------------
+@pytest.mark.xfail(strict=True, reason=(
+    'product bug: default fine_position_tolerance (1 um) is below half a linear count '
+    '(1.27 um); a target between two counts (0.005 m = 1968.5 counts) can never be within the '
+    'fine tolerance on the load encoder, so MOTION_DONE never comes'))
+def test_off_grid_target_settles(axis):
+    """A target in round metres (5 mm from a whole-count position, 1968.5 counts) settles."""
+    p = axis
+    start = on_grid(p.position())
+    target = start + 0.005 if start < 0.3 else start - 0.005
+    assert abs(target / COUNT - round(target / COUNT)) > 0.4        # between two counts
+    try:
+        p.move_and_wait(target, timeout=3.0)
+    finally:
+        p.move_and_wait(on_grid(target), timeout=3.0)                  # leave it settled
+
+
+# -- 2. parameters through the parameter services --------------------------------------------------
 def test_set_kp_is_applied(axis):
+    """`ros2 param set /controller x.kp ...`: accepted, read back, and the loop still moves
+    and settles with it."""
     p = axis
     old = p.get_params('x.kp')['x.kp']
-    results = p.set_params({'x.kp': 25000.0})
+    new = old * 1.2
+    results = p.set_params({'x.kp': new})
     assert results[0].successful, results[0].reason
     try:
-        assert p.get_params('x.kp') == {'x.kp': 25000.0}
+        assert p.get_params('x.kp') == {'x.kp': new}
         p.move_and_wait(far_target(p.position(), 0.005))
     finally:
         assert p.set_params({'x.kp': old})[0].successful
@@ -327,8 +414,8 @@ def test_output_limit_caps_the_command(axis):
         n0 = p.joint_count
         mark = p.publish_target(target)
         p.spin_until(lambda: p.done_since(mark), 3.0)
+        p.spin_for_messages(50)                                 # and a while at rest
         during = list(p.joint_log)[-(p.joint_count - n0):]
-        assert len(during) > 100
         peak = max(abs(e) for *_, e in during)
         assert peak <= 0.5 + 1e-12, f'effort {peak} V above output_limit 0.5 V'
         assert any(w & Status.OUTPUT_SATURATED for w in p.words_since(mark)), \
@@ -344,7 +431,7 @@ def test_invalid_kp_refused_loop_keeps_running(axis, value):
     assert not result.successful
     assert 'x.kp' in result.reason, result.reason
     assert p.get_params('x.kp') == {'x.kp': old}
-    assert p.joint_rate() >= MIN_JOINT_RATE
+    p.assert_loop_running()
     p.move_and_wait(far_target(p.position(), 0.002))
 
 
@@ -389,23 +476,30 @@ def test_coarse_below_fine_tolerance_refused(axis):
 
 
 def test_atomic_set_of_tolerances(axis):
-    """fine 50 um alone is inconsistent with coarse 25.4 um (and coarse 100 um alone is fine but
-    then the old fine...); set together in one set_parameters_atomically call they succeed."""
+    """Raising both tolerances above the old coarse one: the new fine alone is refused (it
+    exceeds the old coarse), in one set_parameters_atomically call with the new coarse it is
+    accepted and both apply. Going back down, the old coarse alone is refused (below the new
+    fine); together with the old fine it is accepted."""
     p = axis
-    names = ('x.fine_position_tolerance', 'x.coarse_position_tolerance')
-    old = p.get_params(*names)
-    new = {names[0]: 50e-6, names[1]: 100e-6}
-    assert new[names[0]] > old[names[1]]           # fine alone would be refused
-    alone = p.set_params({names[0]: new[names[0]]})[0]
-    assert not alone.successful and 'fine_position_tolerance' in alone.reason
+    fine, coarse = 'x.fine_position_tolerance', 'x.coarse_position_tolerance'
+    old = p.get_params(fine, coarse)
+    new = {fine: 2 * old[coarse], coarse: 4 * old[coarse]}
+    alone = p.set_params({fine: new[fine]})[0]
+    assert not alone.successful, alone.reason
+    assert fine[2:] in alone.reason and coarse[2:] in alone.reason, alone.reason   # both named
+    assert p.get_params(fine, coarse) == old
     result = p.set_atomically(new)
     assert result.successful, result.reason
     try:
-        assert p.get_params(*names) == new
-        p.move_and_wait(far_target(p.position(), 0.002))
+        assert p.get_params(fine, coarse) == new
+        p.move_and_wait(far_target(p.position(), 0.002))     # the loop runs with them
+        alone = p.set_params({coarse: old[coarse]})[0]
+        assert not alone.successful and coarse in alone.reason, alone.reason
+        assert p.get_params(fine, coarse) == new
     finally:
-        assert p.set_atomically(old).successful
-    assert p.get_params(*names) == old
+        result = p.set_atomically(old)
+    assert result.successful, result.reason
+    assert p.get_params(fine, coarse) == old
 
 
 def test_read_only_servo_rate_refused(axis):
@@ -415,6 +509,20 @@ def test_read_only_servo_rate_refused(axis):
     assert not result.successful
     assert 'servo_rate' in result.reason and 'read-only' in result.reason, result.reason
     assert p.get_params('servo_rate') == old == {'servo_rate': 1000.0}
+
+
+def test_plant_parameters_use_the_same_rules(axis):
+    """The plant's physics are parameters too: a valid set is applied, a wrong type or a
+    negative backlash is refused naming the parameter."""
+    plant = axis.plant_params
+    assert plant.wait_for_services(10.0)
+    old = axis._answer(plant.get_parameters(['x.backlash'])).values[0].double_value
+    for value, ok in ((Parameter('x.backlash', Parameter.Type.INTEGER, 0), False),
+                      (Parameter('x.backlash', value=-1e-5), False),
+                      (Parameter('x.backlash', value=old), True)):
+        (result,) = axis._answer(plant.set_parameters([value])).results
+        assert result.successful == ok, result.reason
+        assert ok or 'x.backlash' in result.reason, result.reason
 
 
 def test_describe_kp(axis):
@@ -427,8 +535,9 @@ def test_describe_kp(axis):
 
 
 # -- 3. services ---------------------------------------------------------------------------------
-def _efforts_after(p: Probe, n=50) -> list:
-    return [e for *_, e in p.spin_for_messages(n)]
+def _efforts_now(p: Probe, n=50) -> set:
+    """Efforts of joint_states computed from now on (older ones may still be queued)."""
+    return {e for *_, e in p.samples_after(p.now(), n)}
 
 
 def test_abort_opens_the_loop(axis):
@@ -437,7 +546,7 @@ def test_abort_opens_the_loop(axis):
     assert reply.success, reply.message
     assert p.wait_status(lambda s: not s & Status.ENABLED
                          and s & Status.ABORTED and s & Status.MOTION_DONE), repr(p.word)
-    assert set(_efforts_after(p)) == {0.0}
+    assert _efforts_now(p) == {0.0}
     reply = p.call('enable', True)
     assert reply.success, reply.message
     assert p.wait_status(lambda s: s & Status.ENABLED and not s & Status.ABORTED), repr(p.word)
@@ -449,20 +558,21 @@ def test_enable_false_true_and_refusals_while_disabled(slide, axis):
     reply = p.call('enable', False)
     assert reply.success, reply.message
     assert p.wait_status(lambda s: not s & Status.ENABLED), repr(p.word)
-    assert set(_efforts_after(p)) == {0.0}
+    assert _efforts_now(p) == {0.0}
     for service in ('stop', 'estop', 'correct'):
         reply = p.call(service)
         assert not reply.success, service
         assert 'not enabled' in reply.message and 'x' in reply.message, reply.message
     # A target on a disabled axis is refused (logged) and moves nothing.
     before = slide.controller_log.count('target_position refused: x: not enabled')
-    ref_before = p.ref_log[-1][1]
+    slide_before = p.load_position()
     mark = p.publish_target(far_target(p.position(), 0.002))
     assert wait_log(p, slide.controller_log, 'target_position refused: x: not enabled',
                     before + 1)
-    assert not any(w & Status.MOVING for w in p.words_since(mark))
+    assert not any(w & Status.MOVING for w in p.words_since(mark)), p.words_since(mark)
     p.spin_for_messages(20)
-    assert abs(p.ref_log[-1][1] - ref_before) < 5 * COUNT    # the command follows the slide
+    assert abs(p.load_position() - slide_before) < 5 * COUNT, \
+        (slide_before, p.load_position(), p.words_since(mark))
     reply = p.call('enable', True)
     assert reply.success, reply.message
     assert p.wait_status(lambda s: s & Status.ENABLED), repr(p.word)
@@ -475,15 +585,14 @@ def test_fault_refuses_enable_until_reset(axis):
     x/reset, which clears the fault and leaves the loop open; enable then closes it."""
     p = axis
     with changed(p, {'x.following_error_warning': 0.0, 'x.following_error_fatal': 10e-6}):
-        mark = p.publish_target(far_target(p.position(), 0.01))
+        p.publish_target(far_target(p.position(), 0.01))
         assert p.wait_status(lambda s: s & Status.FOLLOWING_ERROR_FATAL), repr(p.word)
         assert not p.word & Status.ENABLED
-        assert any(w & Status.MOVING for w in p.words_since(mark))
         reply = p.call('enable', True)
         assert not reply.success and 'reset' in reply.message, reply.message
         reply = p.call('stop')
         assert not reply.success and reply.message
-        assert set(_efforts_after(p)) == {0.0}
+        assert _efforts_now(p) == {0.0}
     reply = p.call('reset')
     assert reply.success, reply.message
     assert p.wait_status(lambda s: not s & FAULTS), repr(p.word)
@@ -501,17 +610,20 @@ def test_reset_on_a_healthy_axis_is_harmless(axis):
     p.move_and_wait(far_target(p.position(), 0.002))
 
 
-@pytest.mark.parametrize('kind, bit, decel', [
-    ('stop', Status.STOPPED, STOP_DECELERATION),
-    ('estop', Status.ESTOPPED, ESTOP_DECELERATION)])
-def test_stop_during_a_long_move(axis, kind, bit, decel):
+@pytest.mark.parametrize('kind, bit', [('stop', Status.STOPPED), ('estop', Status.ESTOPPED)],
+                         ids=['stop', 'estop'])
+def test_stop_during_a_long_move(axis, kind, bit):
     """x/stop (x/estop) during a 0.2 m move: the profile decelerates from cruise at
     stop_deceleration (estop_deceleration) and the axis ends STOPPED (ESTOPPED) + MOTION_DONE,
     still enabled, far from the abandoned target."""
     p = axis
+    registers = p.get_params('x.max_velocity', 'x.max_acceleration', f'x.{kind}_deceleration')
+    vmax, decel = registers['x.max_velocity'], registers[f'x.{kind}_deceleration']
+    assert vmax ** 2 / registers['x.max_acceleration'] < 0.05     # 0.2 m is long: it cruises
     target = far_target(p.position(), 0.2)
+    t_publish = p.now()
     mark = p.publish_target(target)
-    assert p.spin_until(lambda: p.ref_log and abs(p.ref_log[-1][2]) >= 0.999 * MAX_VELOCITY,
+    assert p.spin_until(lambda: p.ref_log and abs(p.ref_log[-1][2]) >= 0.999 * vmax,
                         3.0), 'move never reached cruise velocity'
     reply = p.call(kind)
     assert reply.success, reply.message
@@ -520,14 +632,14 @@ def test_stop_during_a_long_move(axis, kind, bit, decel):
     assert p.word & Status.ENABLED
     assert not any(w & Status.IN_FINE_POSITION for w in p.words_since(mark))
     p.spin_for_messages(20)
-    ref = [r for r in p.ref_log if r[0] >= 0.0]
+    ref = [r for r in p.ref_log if r[0] >= t_publish]           # this move only
     final = ref[-1][1]
-    cruise_end = max(i for i, r in enumerate(ref) if abs(r[2]) >= 0.999 * MAX_VELOCITY)
+    cruise_end = max(i for i, r in enumerate(ref) if abs(r[2]) >= 0.999 * vmax)
     distance = abs(final - ref[cruise_end][1])
-    expected = MAX_VELOCITY ** 2 / (2 * decel)
+    expected = vmax ** 2 / (2 * decel)
     assert 0.8 * expected <= distance <= 1.2 * expected + 4 * COUNT, \
         f'{kind}: stopped over {distance * 1e3:.3f} mm, expected {expected * 1e3:.3f} mm'
-    assert all(abs(r[2]) <= MAX_VELOCITY * (1 + 1e-9) for r in ref[cruise_end:])
+    assert all(abs(r[2]) <= vmax * (1 + 1e-9) for r in ref[cruise_end:])
     assert abs(final - target) > 0.1
     # A new move clears STOPPED / ESTOPPED and completes.
     p.move_and_wait(far_target(p.position(), 0.002))
@@ -553,7 +665,7 @@ def test_malformed_targets_ignored_at_rest(slide, axis):
     assert wait_log(p, slide.controller_log, pattern, before + len(MALFORMED_TARGETS)), \
         slide.controller_log.text()[-2000:]
     assert not any(w & Status.MOVING for w in p.words_since(mark))
-    assert p.joint_rate() >= MIN_JOINT_RATE
+    p.assert_loop_running()
     assert abs(p.ref_log[-1][1] - ref_before) < 1e-12
     assert slide.controller.proc.poll() is None
     p.move_and_wait(far_target(p.position(), 0.002))
@@ -606,11 +718,19 @@ def test_malformed_encoders_do_not_kill_the_controller(slide, axis):
     for msg in bad:
         p.pub_encoders.publish(msg)
     assert wait_log(p, slide.controller_log, 'encoders ignored', 1)
-    assert p.joint_rate() >= MIN_JOINT_RATE
+    p.assert_loop_running()
     assert slide.controller.proc.poll() is None
     assert not any(w & FAULTS for w in p.words_since(mark)), p.words_since(mark)
     assert p.word & Status.ENABLED
     p.move_and_wait(far_target(p.position(), 0.002))
+
+
+def test_status_word_republished_at_rest(axis):
+    """<axis>/status arrives at least at 10 Hz even when nothing changes."""
+    p = axis
+    start, t0 = p.status_count, time.monotonic()
+    assert p.spin_until(lambda: p.status_count >= start + 8, 1.0), \
+        f'{p.status_count - start} status words in {time.monotonic() - t0:.2f} s'
 
 
 # -- 7. diagnostics --------------------------------------------------------------------------------
@@ -621,19 +741,28 @@ def test_diagnostics_report_the_loop_rate(axis):
     msgs = [m for _, m in p.diag[start:]]
     periods = [_stamp(b) - _stamp(a) for a, b in zip(msgs, msgs[1:])]
     assert all(0.8 <= d <= 1.2 for d in periods), periods
-    loop = [s for s in msgs[-1].status if s.name.endswith('servo loop')]
-    assert len(loop) == 1, [s.name for s in msgs[-1].status]
-    values = {kv.key: kv.value for kv in loop[0].values}
-    rate = float(values['rate_hz'])
-    assert 900.0 <= rate <= 1100.0, values
-    p50, p99 = float(values['jitter_p50_us']), float(values['jitter_p99_us'])
-    assert 0.0 <= p50 <= p99 and math.isfinite(p99), values
+    windows = []
+    for m in msgs:
+        loop = [s for s in m.status if s.name.endswith('servo loop')]
+        assert len(loop) == 1, [s.name for s in m.status]
+        windows.append({kv.key: kv.value for kv in loop[0].values})
+    for values in windows:
+        assert float(values['nominal_rate_hz']) == 1000.0
+        assert float(values['rate_hz']) <= 1100.0, values
+        p50, p99 = float(values['jitter_p50_us']), float(values['jitter_p99_us'])
+        assert 0.0 <= p50 <= p99 and math.isfinite(p99), values
+        assert int(values['overruns_total']) >= 0
+    # One stall of the loaded VM can spoil a 1 s window: the best of three shows the loop rate
+    # (993 Hz on an idle VM, REFERENCE.md; 850 leaves room for a loaded one).
+    best = max(float(v['rate_hz']) for v in windows)
+    assert best >= 850.0, windows
     axis_status = [s for s in msgs[-1].status if s.name.endswith('axis x')]
     assert len(axis_status) == 1
-    assert {kv.key: kv.value for kv in axis_status[0].values}['enabled'] == 'True'
+    axis_values = {kv.key: kv.value for kv in axis_status[0].values}
+    assert {'mode', 'feedback', 'enabled', 'status'} <= set(axis_values), axis_values
 
 
-# -- 5. clean stop (last: it ends the module's nodes) -------------------------------------------------
+# -- 5. clean stop (last: it ends the module's nodes) ----------------------------------------------
 def test_nodes_stop_cleanly_on_sigint(slide):
     """SIGINT (Ctrl-C) ends both nodes with exit code 0 and no traceback in their output.
     SIGTERM is covered in test_ros_lifecycle.py."""

@@ -1,0 +1,149 @@
+"""Node processes start and stop as a user expects: SIGTERM (and SIGINT, see test_ros_nodes.py)
+ends them cleanly, and a bad parameter file ends the node at once with one readable line.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+pytest.importorskip('rclpy')
+
+from motion_ctrl.client import SlideClient  # noqa: E402
+from motion_ctrl.processes import NodeProcess, params_dir  # noqa: E402
+
+try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
+    import pytest_timeout  # noqa: F401
+    pytestmark = pytest.mark.timeout(60)
+except ImportError:
+    pass
+
+
+def _clean(text: str) -> bool:
+    return 'Traceback' not in text and 'Error' not in text
+
+
+def test_nodes_stop_cleanly_on_sigterm(rclpy_session, tmp_path, node_env):
+    """SIGTERM (what systemd, docker stop and launch send) ends both nodes with exit code 0 and
+    no traceback, like SIGINT."""
+    plant = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path=tmp_path / 'plant.log',
+                        env=node_env)
+    controller = NodeProcess('controller_node', params_dir() / 'controller.yaml',
+                             log_path=tmp_path / 'controller.log', env=node_env)
+    client = SlideClient(name='lifecycle_probe')
+    try:
+        assert client.wait_ready(30.0), 'nodes did not come up'
+    finally:
+        client.destroy_node()
+        for node in (plant, controller):
+            if node.proc.poll() is None:
+                node.proc.send_signal(signal.SIGTERM)
+        codes = {}
+        for name, node in (('plant', plant), ('controller', controller)):
+            try:
+                codes[name] = node.proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                codes[name] = 'hung'
+            node.stop()                      # SIGKILL if hung; closes the log
+    assert codes == {'plant': 0, 'controller': 0}, codes
+    for log in ('plant.log', 'controller.log'):
+        text = (tmp_path / log).read_text()
+        assert _clean(text), text[-3000:]
+
+
+BAD_FILES = {
+    # id: (node module, node name, YAML lines, parameter the message must name)
+    'kp-negative': ('controller_node', 'controller', ['x.kp: -5.0'], 'x.kp'),
+    'mode-bogus': ('controller_node', 'controller', ['x.mode: bogus'], 'x.mode'),
+    'kp-integer': ('controller_node', 'controller', ['x.kp: 2'], 'x.kp'),
+    'kp-nan': ('controller_node', 'controller', ['x.kp: .nan'], 'x.kp'),
+    'coarse-below-fine': ('controller_node', 'controller',
+                          ['x.coarse_position_tolerance: 1.0e-7'],
+                          'x.coarse_position_tolerance'),
+    'plant-backlash-negative': ('plant_node', 'plant', ['x.backlash: -1.0e-5'], 'x.backlash'),
+}
+
+
+@pytest.fixture(scope='module')
+def bad_runs(tmp_path_factory, node_env):
+    """Every BAD_FILES case started at once (start-up dominates; in parallel the cases cost
+    about one): {case: (exit code, seconds to exit, stdout, stderr, bad file)}."""
+    d = tmp_path_factory.mktemp('bad_params')
+    procs = {}
+    for case, (module, node, lines, _) in BAD_FILES.items():
+        bad = d / f'{case}.yaml'
+        bad.write_text(f'{node}:\n  ros__parameters:\n'
+                       + ''.join(f'    {ln}\n' for ln in lines))
+        args = [sys.executable, '-m', f'motion_ctrl.{module}', '--ros-args',
+                '--params-file', str(params_dir() / f'{node}.yaml'), '--params-file', str(bad)]
+        procs[case] = (subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True, env=node_env), time.monotonic(), bad)
+    runs = {}
+    for case, (proc, t0, bad) in procs.items():
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        runs[case] = (proc.returncode, time.monotonic() - t0, out, err, bad)
+    return runs
+
+
+@pytest.mark.parametrize('case', list(BAD_FILES))
+def test_bad_params_file_exits_with_one_line(bad_runs, case):
+    """A params file with a bad value, loaded on top of the defaults (as `ros2 run ...
+    --ros-args --params-file` would): the node exits non-zero within seconds, with ONE line on
+    stderr naming the parameter and the file, and no traceback."""
+    code, elapsed, out, err, bad = bad_runs[case]
+    parameter = BAD_FILES[case][3]
+    stderr = [ln for ln in err.splitlines() if ln.strip()]
+    assert code not in (0, None, -9), (code, err)
+    assert elapsed < 20.0       # ~1.5 s alone (mostly imports); 6 at once on a loaded 2-core VM
+    assert 'Traceback' not in err + out, err
+    assert len(stderr) == 1, err
+    assert parameter in stderr[0] and str(bad) in stderr[0], stderr[0]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith('linux'), reason='PR_SET_PDEATHSIG is Linux')
+def test_nodes_do_not_outlive_a_killed_starter(node_env, tmp_path):
+    """A test run or demo killed with SIGKILL cannot stop its nodes: they must not run on as
+    orphans (loading the machine, publishing on the domain) — NodeProcess has the kernel stop
+    them when their starter dies."""
+    log = tmp_path / 'plant.log'
+    starter = subprocess.Popen(
+        [sys.executable, '-c',
+         'import sys, time\n'
+         'from motion_ctrl.processes import NodeProcess, params_dir\n'
+         f"node = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path={str(log)!r})\n"
+         'print(node.proc.pid, flush=True)\n'
+         'time.sleep(60)\n'],
+        stdout=subprocess.PIPE, text=True, env=node_env)
+    try:
+        node_pid = int(starter.stdout.readline())
+        deadline = time.monotonic() + 20.0   # the node up and spinning (past rclpy's re-exec)
+        while 'backlash slide' not in (log.read_text() if log.exists() else '') \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _alive(node_pid)
+    finally:
+        starter.kill()
+        starter.wait()
+    deadline = time.monotonic() + 10.0
+    while _alive(node_pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if _alive(node_pid):                     # don't leave it behind either way
+        os.kill(node_pid, signal.SIGKILL)
+        pytest.fail('the node outlived its killed starter')
+    assert 'Traceback' not in log.read_text()
