@@ -174,7 +174,9 @@ class Axis:
         self._sampled_fb = feedback == 'sampled'
         self._motor_cpm = r['motor_counts_per_m']
         self._load_cpm = r['load_counts_per_m']
-        self._half = 0.5 / (self._motor_cpm if self._motor_side else self._load_cpm)
+        # RMC: anti-hunting below half a raw count. Inclusive (by a hair): a target halfway
+        # between two counts can be held from either, so the integrator must stop there too.
+        self._half = 0.5 * (1 + 1e-6) / (self._motor_cpm if self._motor_side else self._load_cpm)
         self._fe_fatal = r['following_error_fatal']
         self._fe_warn = r['following_error_warning']
         self._soft_lo = r['soft_limit_min']

@@ -192,8 +192,9 @@ AXIS_REGISTERS = (
        'Galil BL, PMAC Ixx14'),
     _r('soft_limit_max', 'double', 0.5, 'm', 'Targets above are refused (LIMIT bit).',
        'Galil FL, PMAC Ixx13'),
-    _r('fine_position_tolerance', 'double', 1.0e-6, 'm', 'Settled window on the position '
-       'error.', 'RMP PositionToleranceFine', min=0.0),
+    _r('fine_position_tolerance', 'double', 1.5e-6, 'm', 'Settled window on the position '
+       'error (default: the exact count on the linear encoder, or either neighbour of a target '
+       'that falls between two counts).', 'RMP PositionToleranceFine', min=0.0),
     _r('coarse_position_tolerance', 'double', 2.54e-5, 'm', 'Near-target window.',
        'RMP PositionToleranceCoarse', min=0.0),
     _r('velocity_tolerance', 'double', 0.005, 'm/s', 'Settled / at-velocity window on the '

@@ -371,10 +371,6 @@ def test_move_one_inch_over_dds(slide, axis):
     assert not p.word & Status.MOVING
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'product bug: default fine_position_tolerance (1 um) is below half a linear count '
-    '(1.27 um); a target between two counts (0.005 m = 1968.5 counts) can never be within the '
-    'fine tolerance on the load encoder, so MOTION_DONE never comes'))
 def test_off_grid_target_settles(axis):
     """A target in round metres (5 mm from a whole-count position, 1968.5 counts) settles."""
     p = axis
