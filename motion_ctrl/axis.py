@@ -488,13 +488,18 @@ class Axis:
             self._recompose()
 
     # -- the servo tick -------------------------------------------------------------------------
-    def update(self, dt: float, motor_counts, load_counts, sample_dt: float | None = None
-               ) -> float:
+    def update(self, dt: float, motor_counts, load_counts, sample_dt: float | None = None,
+               age: float = 0.0) -> float:
         """One servo tick with the latest encoder counts; returns the amplifier command [V].
 
         sample_dt: time between this encoder sample and the previous one (from their stamps),
         None = dt (sampled in step with the loop), 0 = no new sample since the last tick (the
         velocity estimates are kept rather than read as a stop).
+        age: how old the sample is at this tick [s]. Over DDS a sample is 0..2 ms old; compared
+        with the command of *now* it would read as a following error of velocity × age (at
+        0.1 m/s, 1 ms is 40 counts) and jitter the output. So the error is taken against the
+        command at the sample's time, cmd − cmd_velocity × age (a PMAC reads its encoders at
+        the servo interrupt: age 0).
         """
         self.time += dt
         if not self.homed:
@@ -539,6 +544,8 @@ class Axis:
             loop_acc = self.motor_acc
         self.actual_pos = actual_pos
         self.actual_vel = actual_vel
+        if age > 0.0:
+            loop_cmd -= velocity * age
         fe = loop_cmd - loop_pos
         self.following_error = fe
         fatal = self._fe_fatal

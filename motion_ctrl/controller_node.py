@@ -249,8 +249,9 @@ class ControllerNode(Node):
                 prev = self.enc_used[a]
                 sample_dt = None if prev is None else s_stamp - prev
                 self.enc_used[a] = s_stamp
-                self.stats.feedback_age(now - s_stamp)
-                out = axis.update(dt, motor, load, sample_dt=sample_dt)
+                age = min(max(now - s_stamp, 0.0), 3 * self.period)
+                self.stats.feedback_age(age)
+                out = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
             names.append(a)
             outputs.append(out)
         if names:
