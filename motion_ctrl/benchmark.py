@@ -96,7 +96,6 @@ def bench_sleep_floor(rate: float, seconds: float = 3.0) -> dict:
 
 
 def bench_rclpy_floor(rate: float, seconds: float = 3.0) -> dict:
-    import rclpy
     from rclpy.node import Node
     from rclpy.experimental import EventsExecutor
     node = Node('bench_floor')
@@ -123,9 +122,7 @@ def _cpu_seconds(pid: int) -> float:
 
 
 def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
     import msg_defs as md

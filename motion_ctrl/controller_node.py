@@ -22,8 +22,6 @@ import sys
 import time
 
 import rclpy
-from rclpy.node import Node
-from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
 from std_srvs.srv import SetBool, Trigger
@@ -40,9 +38,11 @@ STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
 MAX_SCHEDULE = 10.0      # s: a target stamped further ahead is not a schedule but another clock
 
 
-class ControllerNode(Node):
+class ControllerNode(ros_params.RegisterNode):
     def __init__(self, **kwargs):
         super().__init__('controller', **kwargs)
+        self.globals_table, self.axis_table = CONTROLLER_GLOBAL, CONTROLLER_AXIS
+        self.consistency = consistency
         g = {r.name: ros_params.declare(self, r, r.name) for r in CONTROLLER_GLOBALS}
         self.axis_names = list(g['axes'])
         self.servo_rate = g['servo_rate']
@@ -56,7 +56,7 @@ class ControllerNode(Node):
             self.values[name] = values
             self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see main()
         self.staged: dict[str, dict] = {}
-        self.add_on_set_parameters_callback(self._validate)
+        self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._stage)
 
         # Encoder state per axis: latest counts, their stamp, when they arrived.
@@ -92,52 +92,15 @@ class ControllerNode(Node):
             f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}')
 
     # -- parameters -----------------------------------------------------------------------------
-    def set_parameters_atomically(self, parameter_list):
-        # Fix: the parameter services (`ros2 param set`, set_parameters and
-        # set_parameters_atomically) all land here; name the parameter in rclpy's
-        # wrong-type refusal (ros_params.name_type_refusal).
-        return ros_params.name_type_refusal(
-            self, parameter_list, super().set_parameters_atomically(parameter_list))
-
-    def _split(self, name):
-        axis, _, reg = name.partition('.')
-        if axis in self.axes and reg in CONTROLLER_AXIS:
-            return axis, reg
-        return None, None
-
-    def _validate(self, params) -> SetParametersResult:
-        candidate = {}
-        for p in params:
-            if p.name in CONTROLLER_GLOBAL:
-                reg = CONTROLLER_GLOBAL[p.name]
-                reason = reg.check(ros_params.plain(p.value))
-                if reason:
-                    return SetParametersResult(successful=False, reason=reason)
-                continue
-            axis, regname = self._split(p.name)
-            if axis is None:
-                continue          # not ours (use_sim_time, ...): rclpy's own rules apply
-            value = ros_params.plain(p.value)
-            reason = CONTROLLER_AXIS[regname].check(value)
-            if reason:
-                return SetParametersResult(successful=False, reason=f'{axis}.{reason}')
-            candidate.setdefault(axis, {})[regname] = value
-        for axis, changes in candidate.items():
-            merged = self.values[axis] | self.staged.get(axis, {}) | changes
-            reasons = consistency(merged)
-            if reasons:
-                return SetParametersResult(successful=False,
-                                           reason='; '.join(f'{axis}.{r}' for r in reasons))
-        return SetParametersResult(successful=True)
+    def current(self, axis: str) -> dict:
+        return self.values[axis] | self.staged.get(axis, {})
 
     def _stage(self, params) -> None:
         for p in params:
             if p.name == 'feedback_timeout':
                 self.feedback_timeout = p.value
-                continue
-            axis, regname = self._split(p.name)
-            if axis is not None:
-                self.staged.setdefault(axis, {})[regname] = ros_params.plain(p.value)
+        for axis, changes in self.axis_changes(params).items():
+            self.staged.setdefault(axis, {}).update(changes)
 
     def _apply_staged(self) -> None:
         for axis, changes in self.staged.items():

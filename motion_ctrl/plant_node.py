@@ -16,10 +16,8 @@ from __future__ import annotations
 import sys
 
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
-from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 
 import msg_defs as md
@@ -31,9 +29,11 @@ from motion_ctrl.registers import PLANT_AXIS, PLANT_GLOBALS, PLANT_PARAMETERS, p
 COMMAND_TIMEOUT = 0.1    # s
 
 
-class PlantNode(Node):
+class PlantNode(ros_params.RegisterNode):
     def __init__(self, **kwargs):
         super().__init__('plant', **kwargs)
+        self.globals_table, self.axis_table = {r.name: r for r in PLANT_GLOBALS}, PLANT_AXIS
+        self.consistency = plant_consistency
         g = {r.name: ros_params.declare(self, r, r.name) for r in PLANT_GLOBALS}
         self.axis_names = list(g['axes'])
         self.period = 1.0 / g['publish_rate']
@@ -45,7 +45,7 @@ class PlantNode(Node):
             self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values)
         self.volts = {a: 0.0 for a in self.axis_names}
         self.command_time = None
-        self.add_on_set_parameters_callback(self._validate)
+        self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
         self.pub_enc = md.JointStateStream(
             self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS))
@@ -68,42 +68,11 @@ class PlantNode(Node):
             f'backlash {p.params["backlash"] * 1e6:.1f} um, publishing at '
             f'{1 / self.period:g} Hz')
 
-    def set_parameters_atomically(self, parameter_list):
-        # Fix: the parameter services (`ros2 param set`, set_parameters and
-        # set_parameters_atomically) all land here; name the parameter in rclpy's
-        # wrong-type refusal (ros_params.name_type_refusal).
-        return ros_params.name_type_refusal(
-            self, parameter_list, super().set_parameters_atomically(parameter_list))
-
-    def _split(self, name):
-        axis, _, reg = name.partition('.')
-        return (axis, reg) if axis in self.plants and reg in PLANT_AXIS else (None, None)
-
-    def _validate(self, params):
-        changes = {}
-        for p in params:
-            axis, reg = self._split(p.name)
-            if axis is None:
-                continue
-            value = ros_params.plain(p.value)
-            reason = PLANT_AXIS[reg].check(value)
-            if reason:
-                return SetParametersResult(successful=False, reason=f'{axis}.{reason}')
-            changes.setdefault(axis, {})[reg] = value
-        for axis, ch in changes.items():
-            reasons = plant_consistency(self.plants[axis].params | ch)
-            if reasons:
-                return SetParametersResult(successful=False,
-                                           reason='; '.join(f'{axis}.{r}' for r in reasons))
-        return SetParametersResult(successful=True)
+    def current(self, axis: str) -> dict:
+        return self.plants[axis].params
 
     def _apply(self, params):
-        changes = {}
-        for p in params:
-            axis, reg = self._split(p.name)
-            if axis is not None:
-                changes.setdefault(axis, {})[reg] = ros_params.plain(p.value)
-        for axis, ch in changes.items():
+        for axis, ch in self.axis_changes(params).items():
             self.plants[axis].configure(**ch)
 
     def _on_command(self, msg: JointState) -> None:
@@ -150,7 +119,7 @@ class PlantNode(Node):
         self.publish(now_msg.to_msg())
 
     def publish(self, stamp) -> None:
-        names, counts, tnames, tpos, tvel = [], [], [], [], []
+        names, counts, tpos, tvel = [], [], [], []
         for a, plant in self.plants.items():
             m, l = plant.encoder_counts()
             names += [md.motor_joint(a), md.load_joint(a)]

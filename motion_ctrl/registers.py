@@ -11,7 +11,7 @@ Galil manual's backlash slide (1 in = 40,000 motor counts = 10,000 linear counts
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 INCH = 0.0254
 MOTOR_COUNTS_PER_M = 40000 / INCH     # 8,000 counts/rev on a 5.08 mm lead

@@ -10,6 +10,7 @@ import math
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 _TYPES = {
@@ -79,3 +80,56 @@ def name_type_refusal(node, params, result):
                 reason=f'{p.name}: wrong type {p.type_.name.lower()}, expected '
                        f'{want.name.lower()}{hint}')
     return result
+
+
+class RegisterNode(Node):
+    """A node whose parameters are rows of a register table: node-wide ones by name and per-axis
+    ones as `<axis>.<register>`. One validation for both nodes: every value checked against its
+    row, then the table's cross-register rules on the axis' values as they would become; a
+    refusal names the parameter and nothing changes.
+
+    Subclasses set `self.globals_table` ({name: Register}), `self.axis_table`, `self.axis_names`,
+    `self.consistency` (values -> reasons) and implement `current(axis)` (that axis' values
+    including anything accepted but not applied yet).
+    """
+
+    def set_parameters_atomically(self, parameter_list):
+        # The parameter services (`ros2 param set`, set_parameters, set_parameters_atomically)
+        # all land here: name the parameter in rclpy's wrong-type refusal.
+        return name_type_refusal(self, parameter_list,
+                                 super().set_parameters_atomically(parameter_list))
+
+    def split(self, name):
+        """'x.kp' -> ('x', 'kp') for a register of a known axis, else (None, None)."""
+        axis, _, reg = name.partition('.')
+        if axis in self.axis_names and reg in self.axis_table:
+            return axis, reg
+        return None, None
+
+    def axis_changes(self, params) -> dict:
+        """{axis: {register: value}} of the per-axis parameters among `params`."""
+        changes = {}
+        for p in params:
+            axis, reg = self.split(p.name)
+            if axis is not None:
+                changes.setdefault(axis, {})[reg] = plain(p.value)
+        return changes
+
+    def validate(self, params) -> SetParametersResult:
+        for p in params:
+            reg = self.globals_table.get(p.name)
+            axis, name = self.split(p.name)
+            if reg is None and axis is not None:
+                reg = self.axis_table[name]
+            if reg is None:
+                continue            # not ours (use_sim_time, ...): rclpy's own rules apply
+            reason = reg.check(plain(p.value))
+            if reason:
+                return SetParametersResult(
+                    successful=False, reason=f'{axis}.{reason}' if axis else reason)
+        for axis, changes in self.axis_changes(params).items():
+            reasons = self.consistency(self.current(axis) | changes)
+            if reasons:
+                return SetParametersResult(successful=False,
+                                           reason='; '.join(f'{axis}.{r}' for r in reasons))
+        return SetParametersResult(successful=True)

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from msg_defs.status import Status
 from motion_ctrl.harness import Harness
 from motion_ctrl.plant import SlidePlant
 from motion_ctrl.registers import INCH

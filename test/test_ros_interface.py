@@ -1,6 +1,5 @@
 """The ROS interface beyond one axis (issue 6): three axes in one controller over DDS, and the
 parameter YAML load / dump round trip through the parameter services `ros2 param` uses."""
-import math
 import pathlib
 
 import pytest
