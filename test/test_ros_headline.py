@@ -1,0 +1,52 @@
+"""The headline over ROS (issues 4 and 5): plant and controller as two processes, targets on
+`target_position`, the true slide read from `plant_states`, the status word from `x/status`."""
+import pytest
+
+from msg_defs.status import Status
+from motion_ctrl.client import SlideClient
+from motion_ctrl.processes import start_slide
+
+INCH = 0.0254
+COUNT = INCH / 10000
+
+
+@pytest.fixture
+def slide(rclpy_session, tmp_path, request):
+    feedback = request.param
+    plant, controller = start_slide({'x.feedback': feedback}, log_dir=tmp_path)
+    client = SlideClient(name=f'headline_{feedback}')
+    try:
+        assert client.wait_ready(30.0), f'nodes did not come up, logs in {tmp_path}'
+        yield client
+    finally:
+        client.destroy_node()
+        assert controller.stop() == 0 and plant.stop() == 0
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize('slide', ['dual', 'sampled'], indirect=True)
+def test_one_inch_after_a_reversal_lands_within_a_count(slide):
+    assert slide.move({'x': 2 * INCH}, timeout=10.0) is not None
+    t = slide.move({'x': INCH}, timeout=10.0)
+    assert t is not None, f'no MOTION_DONE, status {slide.status}'
+    slide.spin_until(lambda: False, 0.05)
+    error = (slide.load_position() - INCH) / COUNT
+    assert abs(error) <= 1.0, f'slide {error:+.2f} counts from the target'
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize('slide', ['dual'], indirect=True)
+def test_status_transitions_of_a_move_arrive_in_order(slide):
+    mark = len(slide.status_log['x'])
+    assert slide.move({'x': INCH}, timeout=10.0) is not None
+    words = [w for _, w in slide.status_log['x'][mark:]]
+
+    def first(bit):
+        return next(i for i, w in enumerate(words) if w & bit)
+    moving = first(Status.MOVING)
+    at_target, coarse = first(Status.AT_TARGET), first(Status.IN_COARSE_POSITION)
+    fine, done = first(Status.IN_FINE_POSITION), first(Status.MOTION_DONE)
+    assert moving == 0                   # the first change the subscriber sees is MOVING
+    assert moving < min(at_target, coarse) <= max(at_target, coarse) <= fine <= done
+    assert words[done] & Status.IN_FINE_POSITION          # settled and done together
+    assert not words[done] & Status.MOVING
