@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import time
 
-import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
@@ -17,8 +16,11 @@ from msg_defs.status import Status
 
 
 class SlideClient(Node):
-    def __init__(self, axes=('x',), name='slide_client'):
-        super().__init__(name)
+    def __init__(self, axes=('x',), name='slide_client', context=None):
+        super().__init__(name, context=context)
+        from rclpy.executors import SingleThreadedExecutor
+        self.executor_ = SingleThreadedExecutor(context=self.context)
+        self.executor_.add_node(self)
         self.axes = list(axes)
         self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
         self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
@@ -48,7 +50,7 @@ class SlideClient(Node):
         while time.monotonic() < end:
             if predicate():
                 return True
-            rclpy.spin_once(self, timeout_sec=0.01)
+            self.executor_.spin_once(timeout_sec=0.01)
         return bool(predicate())
 
     def wait_ready(self, timeout: float = 15.0) -> bool:

@@ -60,8 +60,12 @@ class ControllerNode(ros_params.RegisterNode):
         self.add_post_set_parameters_callback(self._stage)
 
         # Encoder state per axis: latest counts, their stamp, when they arrived.
-        self.enc = {a: None for a in self.axis_names}      # (motor, load, stamp_s, recv_s)
+        self.enc = {a: None for a in self.axis_names}      # (motor, load, stamp_s)
         self.enc_used = {a: None for a in self.axis_names}
+        # Servo time waited for a new sample, counting a late tick as at most two periods: a
+        # controller that was itself held up (its queued samples not yet read) must not blame
+        # the encoders; a plant that stopped sending is still caught after feedback_timeout.
+        self.waited = {a: 0.0 for a in self.axis_names}
 
         qos = md.SERVO_QOS
         stream = lambda topic: md.JointStateStream(self.create_publisher(JointState, topic, qos))
@@ -120,11 +124,10 @@ class ControllerNode(ros_params.RegisterNode):
             self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        recv = stamp if self.sim_time else self.get_clock().now().nanoseconds * 1e-9
         for a in self.axis_names:
             m, l = counts.get(md.motor_joint(a)), counts.get(md.load_joint(a))
             if m is not None and l is not None:
-                self.enc[a] = (int(m), int(l), stamp, recv)
+                self.enc[a] = (int(m), int(l), stamp)
         if self.sim_time and (self.last_tick is None or stamp > self.last_tick):
             self._tick(msg.header.stamp)
 
@@ -202,10 +205,15 @@ class ControllerNode(ros_params.RegisterNode):
             enc = self.enc[a]
             if enc is None:
                 continue                 # no feedback yet: the loop stays open, nothing sent
-            motor, load, s_stamp, recv = enc
-            if now - recv > self.feedback_timeout and not axis.homed:
+            motor, load, s_stamp = enc
+            if s_stamp != self.enc_used[a]:
+                self.waited[a] = 0.0
+            else:
+                self.waited[a] += min(dt, 2 * self.period)
+            stale = self.waited[a] > self.feedback_timeout
+            if stale and not axis.homed:
                 continue                 # no fresh sample yet since start-up: keep waiting
-            if now - recv > self.feedback_timeout:
+            if stale:
                 axis.feedback_fault()
                 out = axis.update(dt, motor, load, sample_dt=0.0)
             else:

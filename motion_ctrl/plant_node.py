@@ -102,8 +102,7 @@ class PlantNode(ros_params.RegisterNode):
 
     def _lockstep_publish(self) -> None:
         stamp = Time(nanoseconds=self.sim_ns).to_msg()
-        self.pub_clock.publish(ClockMsg(clock=stamp))
-        self.publish(stamp)
+        self.publish(stamp, then=lambda: self.pub_clock.publish(ClockMsg(clock=stamp)))
 
     def _tick(self) -> None:
         now_msg = self.get_clock().now()
@@ -118,7 +117,9 @@ class PlantNode(ros_params.RegisterNode):
             plant.step(0.0 if stale else self.volts[a], dt)
         self.publish(now_msg.to_msg())
 
-    def publish(self, stamp) -> None:
+    def publish(self, stamp, then=None) -> None:
+        """encoders first (the controller's next tick waits on them), then `then()` and the
+        ground truth."""
         names, counts, tpos, tvel = [], [], [], []
         for a, plant in self.plants.items():
             m, l = plant.encoder_counts()
@@ -127,6 +128,8 @@ class PlantNode(ros_params.RegisterNode):
             tpos += [plant.x_m, plant.x_l]
             tvel += [plant.v_m, plant.v_l]
         self.pub_enc.publish(stamp, names, counts)
+        if then is not None:
+            then()
         self.pub_truth.publish(stamp, names, tpos, tvel)
 
 

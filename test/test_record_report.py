@@ -301,7 +301,10 @@ def test_recording_at_servo_rate_is_complete(recording):
     seen = r['checker'].stamps
     checker_missed, lost = {}, {}
     for topic in SERVO_TOPICS:
-        lo = max(stamps[topic][0], seen[topic][0])
+        # From half a second after both first received: until discovery has completed in both
+        # directions the writer does not yet serve a new reader reliably (seen here: a burst
+        # in the first ~0.3 s missing from one of two readers and never afterwards).
+        lo = max(stamps[topic][0], seen[topic][0]) + 500_000_000
         hi = min(stamps[topic][-1], seen[topic][-1])
         in_bag = {s for s in stamps[topic] if lo <= s <= hi}
         in_checker = {s for s in seen[topic] if lo <= s <= hi}
