@@ -130,6 +130,9 @@ class ControllerNode(ros_params.RegisterNode):
                 self.enc[a] = (int(m), int(l), stamp)
         if self.sim_time and (self.last_tick is None or stamp > self.last_tick):
             self._tick(msg.header.stamp)
+        elif self.sim_time and stamp == self.last_tick and self.pub_command.names:
+            # The lockstep plant sent this sample again: our answer did not reach it.
+            self.pub_command.publisher.publish(self.pub_command.msg)
 
     def _targets(self, msg, field, what):
         try:

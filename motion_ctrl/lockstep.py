@@ -47,28 +47,18 @@ def run_lockstep(target: float = 0.0254, start: float = 1.0, end: float = 3.0,
                              {'use_sim_time': 'true'}, log('controller'), env=_with_path(env))
     client = SlideClient(name='lockstep_client', context=context)
     truth, clock = {}, []
-    live = []       # set once this run's plant starts: what arrives before is a previous run's
-    # Fast DDS may still hand a new reader the last samples of a plant that has exited (seen
-    # here, over shared memory): this run's sim time starts at 0 and grows a period at a time,
-    # so a sample far ahead of the last accepted one belongs to someone else.
-    horizon = [0.1]
-
-    def current(t: float) -> bool:
-        if not live or t > horizon[0]:
-            return False
-        horizon[0] = max(horizon[0], t + 0.1)
-        return True
+    live = []       # set once this run's plant starts
     # Depth for a whole run: a slow reader must not lose samples.
     deep = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE)
 
     def on_truth(msg):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if current(stamp * 1e-9):
+        if live:
             truth[stamp] = tuple(msg.position) + tuple(msg.velocity)
 
     def on_clock(msg):
         t = msg.clock.sec + msg.clock.nanosec * 1e-9
-        if current(t):
+        if live:
             clock.append((time.monotonic(), t))
     client.create_subscription(JointState, md.PLANT_STATES, on_truth, deep)
     client.create_subscription(Clock, md.CLOCK, on_clock, deep)
@@ -85,7 +75,10 @@ def run_lockstep(target: float = 0.0254, start: float = 1.0, end: float = 3.0,
         plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
                             env=_with_path(env))
         if not client.spin_until(lambda: clock and clock[-1][1] >= end, timeout):
-            raise RuntimeError(f'lockstep did not reach {end} s of sim time')
+            raise RuntimeError(
+                f'lockstep did not reach {end} s of sim time: stopped at '
+                f'{clock[-1][1] if clock else None} s; plant exit {plant.proc.poll()}, '
+                f'controller exit {controller.proc.poll()}')
     finally:
         client.destroy_node()
         for n in (plant, controller):

@@ -9,7 +9,10 @@ Lockstep (`lockstep: 1`): the plant is the clock. It publishes `/clock`, `encode
 `plant_states` at sim time t, waits for the controller's command stamped t (the controller,
 with use_sim_time, ticks on each encoder sample), integrates exactly one period with it, and
 repeats: a scenario gives bit-identical results run after run, as fast as the two processes can
-exchange messages. Until the first command arrives (discovery), the t = 0 sample is repeated.
+exchange messages. Whenever no answer has come for LOCKSTEP_RESEND seconds of wall time (the
+controller not there yet, or a command sent before discovery had matched it to this reader),
+the current sample is sent again; the controller answers a repeated sample with the command it
+already computed for it, so nothing is computed twice and the run stays deterministic.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from motion_ctrl.plant import SlidePlant
 from motion_ctrl.registers import PLANT_AXIS, PLANT_GLOBALS, PLANT_PARAMETERS, plant_consistency
 
 COMMAND_TIMEOUT = 0.1    # s
+LOCKSTEP_RESEND = 0.05   # s of wall time without progress before the sample is sent again
 
 
 class PlantNode(ros_params.RegisterNode):
@@ -57,8 +61,8 @@ class PlantNode(ros_params.RegisterNode):
             self.period_ns = round(self.period * 1e9)
             self.sim_ns = 0
             self.pub_clock = self.create_publisher(ClockMsg, md.CLOCK, 10)
-            # Repeat the t = 0 sample on the wall clock until the controller answers.
-            self.timer = self.create_timer(0.05, self._lockstep_announce,
+            self.resent_at_ns = None
+            self.timer = self.create_timer(LOCKSTEP_RESEND, self._lockstep_resend,
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             self.timer = self.create_timer(self.period, self._tick)
@@ -85,9 +89,6 @@ class PlantNode(ros_params.RegisterNode):
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if stamp_ns != self.sim_ns:
                 return                      # an answer to an older sample
-            if self.timer is not None:
-                self.timer.cancel()         # the controller is there: lockstep from now on
-                self.timer = None
             self.volts.update(volts)
             for a, plant in self.plants.items():
                 plant.step(self.volts[a], self.period_ns * 1e-9)
@@ -97,8 +98,10 @@ class PlantNode(ros_params.RegisterNode):
         self.volts.update(volts)
         self.command_time = self.get_clock().now().nanoseconds * 1e-9
 
-    def _lockstep_announce(self) -> None:
-        self._lockstep_publish()
+    def _lockstep_resend(self) -> None:
+        if self.resent_at_ns == self.sim_ns:      # no progress since the last check
+            self._lockstep_publish()
+        self.resent_at_ns = self.sim_ns
 
     def _lockstep_publish(self) -> None:
         stamp = Time(nanoseconds=self.sim_ns).to_msg()
