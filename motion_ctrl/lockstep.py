@@ -25,14 +25,12 @@ _runs = itertools.count()
 
 
 def _private_domain() -> int:
-    """A ROS domain for one run, other than this process's: a run never meets the samples of
-    an earlier run's nodes (Fast DDS was seen handing a new reader the last samples of a plant
-    that had exited, over shared memory)."""
+    """A ROS domain for one run, other than this process's, so runs don't meet each other."""
     base = int(os.environ.get('ROS_DOMAIN_ID', '1'))
     return (base + 50 + next(_runs)) % 101 + 1
 
 
-def run_lockstep(target: float = 0.0254, start: float = 1.0, end: float = 3.0,
+def run_lockstep(target: float = 0.0254, start: float = 8.0, end: float = 10.0,
                  timeout: float = 60.0, log_dir=None):
     """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second)."""
     import pathlib
@@ -40,52 +38,69 @@ def run_lockstep(target: float = 0.0254, start: float = 1.0, end: float = 3.0,
     d = params_dir()
     log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
     domain = _private_domain()
-    env = os.environ | {'ROS_DOMAIN_ID': str(domain)}
+    # Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of
+    # stopped processes in /dev/shm, and a new participant on the same domain and port was
+    # seen reading an earlier run's last samples from them (a stale /clock ended a run at
+    # once). Lost UDP datagrams cost nothing here: the plant resends a sample without answer.
+    udp = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | udp
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    controller = NodeProcess('controller_node', d / 'controller.yaml',
-                             {'use_sim_time': 'true'}, log('controller'), env=_with_path(env))
+    saved = {k: os.environ.get(k) for k in udp}
+    os.environ.update(udp)               # read when the participant is created
+    try:
+        rclpy.init(context=context, domain_id=domain)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     client = SlideClient(name='lockstep_client', context=context)
     truth, clock = {}, []
-    live = []       # set once this run's plant starts
     # Depth for a whole run: a slow reader must not lose samples.
     deep = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE)
 
     def on_truth(msg):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if live:
-            truth[stamp] = tuple(msg.position) + tuple(msg.velocity)
+        truth[stamp] = tuple(msg.position) + tuple(msg.velocity)
 
     def on_clock(msg):
-        t = msg.clock.sec + msg.clock.nanosec * 1e-9
-        if live:
-            clock.append((time.monotonic(), t))
+        clock.append((time.monotonic(), msg.clock.sec + msg.clock.nanosec * 1e-9))
     client.create_subscription(JointState, md.PLANT_STATES, on_truth, deep)
     client.create_subscription(Clock, md.CLOCK, on_clock, deep)
-    plant = None
+    controller = None
+    # The plant first: it holds t = 0 (resending it) until a controller answers, so this
+    # client sees the run from its first sample. Then the controller: the sim runs as soon as
+    # it finds the plant, and it gets the target (stamped `start`, up to 10 s ahead) when this
+    # client has found it, which takes a second or two: `start` leaves room for that.
+    plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
+                        env=_with_path(env))
     try:
+        if not client.spin_until(lambda: clock and truth, 30.0):
+            raise RuntimeError('lockstep plant not discovered')
+        controller = NodeProcess('controller_node', d / 'controller.yaml',
+                                 {'use_sim_time': 'true'}, log('controller'),
+                                 env=_with_path(env))
         if not client.spin_until(lambda: client.pub_target.get_subscription_count() > 0, 30.0):
             raise RuntimeError('controller not discovered')
         stamp = JointState().header.stamp
         stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
-        msg = md.joint_state(stamp, ['x'], [target])
-        client.pub_target.publish(msg)
-        client.spin_until(lambda: False, 0.2)       # delivered before the clock starts
-        live.append(True)
-        plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
-                            env=_with_path(env))
-        if not client.spin_until(lambda: clock and clock[-1][1] >= end, timeout):
+        sent_at = clock[-1][1]
+        client.pub_target.publish(md.joint_state(stamp, ['x'], [target]))
+        if sent_at > start - 1.0:
+            raise RuntimeError(f'the target was sent at sim time {sent_at:.3f} s, too close '
+                               f'to its start at {start} s to be sure it arrived before')
+        if not client.spin_until(lambda: clock[-1][1] >= end, timeout):
             raise RuntimeError(
-                f'lockstep did not reach {end} s of sim time: stopped at '
-                f'{clock[-1][1] if clock else None} s; plant exit {plant.proc.poll()}, '
-                f'controller exit {controller.proc.poll()}')
+                f'lockstep did not reach {end} s of sim time: stopped at {clock[-1][1]} s; '
+                f'plant exit {plant.proc.poll()}, controller exit {controller.proc.poll()}')
     finally:
         client.destroy_node()
         for n in (plant, controller):
             if n is not None:
                 n.stop()
         context.try_shutdown()
-    moving = [(w, s) for w, s in clock if s > 0.0]
+    moving = [(w, t) for w, t in clock if t > 0.0]
     speed = ((moving[-1][1] - moving[0][1]) / (moving[-1][0] - moving[0][0])
              if len(moving) > 1 else float('nan'))
     return truth, speed
@@ -97,4 +112,4 @@ def _with_path(env: dict) -> dict:
 
 
 def bench_lockstep() -> float:
-    return run_lockstep(end=3.0)[1]
+    return run_lockstep()[1]
