@@ -335,7 +335,9 @@ def test_recording_at_servo_rate_is_complete(recording):
     k0 = max(i for i, s in enumerate(window) if s < d0)
     gaps = skipped_ticks(window[k0:])
     published = len(window) - 1 - k0
-    assert sum(gaps) == n1 - n0, (
+    # The two diagnostics samples are taken at 1 Hz between ticks: a skipped tick next to
+    # either boundary can fall on the other side of it, hence the one tick at each end.
+    assert abs(sum(gaps) - (n1 - n0)) <= 2, (
         f'bag gaps {sum(gaps)} vs controller skipped {n1 - n0}: a tick is missing')
     # The same per-tick comparison for the other controller streams.
     for topic in ('/reference_states', '/motor_states', '/command'):
