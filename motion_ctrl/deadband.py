@@ -27,7 +27,8 @@ closed and which mode the axis is in.
 
 import math
 
-__all__ = ['output_deadband', 'anti_hunting', 'limit_integral_to_wind_down']
+__all__ = ['output_deadband', 'apply_deadband', 'anti_hunting', 'in_anti_hunting_window',
+           'limit_integral_to_wind_down']
 
 
 def _check_non_negative(name, value):
@@ -53,6 +54,12 @@ def output_deadband(output, deadband, error, tolerance, target_stopped, position
     """
     _check_non_negative('deadband', deadband)
     _check_non_negative('tolerance', tolerance)
+    return apply_deadband(output, deadband, error, tolerance, target_stopped, position_mode)
+
+
+def apply_deadband(output, deadband, error, tolerance, target_stopped, position_mode):
+    """output_deadband without the argument checks: for the servo tick, whose registers were
+    validated when they were set."""
     if output == 0 or deadband == 0:
         return output
     if position_mode:
@@ -75,6 +82,11 @@ def anti_hunting(target_stopped, error, tolerance, half_count):
     """
     _check_non_negative('tolerance', tolerance)
     _check_non_negative('half_count', half_count)
+    return in_anti_hunting_window(target_stopped, error, tolerance, half_count)
+
+
+def in_anti_hunting_window(target_stopped, error, tolerance, half_count):
+    """anti_hunting without the argument checks (the servo tick's registers are validated)."""
     if not target_stopped:
         return False
     err = abs(error)

@@ -127,7 +127,7 @@ class ServoLaw:
         else:
             raw_error = error = cmd_vel - act_vel
         # RMC anti-hunting: target stopped and inside the tolerance (or half a raw count).
-        self.anti_hunting = position_mode and db.anti_hunting(
+        self.anti_hunting = position_mode and db.in_anti_hunting_window(
             target_stopped, raw_error, r['deadband_tolerance'], half_count)
         feedforward = (r['kvff'] * cmd_vel + r['kaff'] * cmd_acc
                        + r['friction_ff'] * _sign(cmd_vel) + r['bias'])
@@ -136,8 +136,8 @@ class ServoLaw:
 
         def finish(v):
             """Output deadband (with ratioing) on the notch output."""
-            return db.output_deadband(v, deadband, raw_error, tolerance, target_stopped,
-                                      position_mode)
+            return db.apply_deadband(v, deadband, raw_error, tolerance, target_stopped,
+                                     position_mode)
 
         if mode.endswith('pid'):
             held = r['integration_mode'] == 'at_rest' and cmd_vel != 0.0
