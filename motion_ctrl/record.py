@@ -146,7 +146,6 @@ class Recorder:
 
     # -- setup ------------------------------------------------------------------------------
     def open(self) -> 'Recorder':
-        import rclpy
         from rclpy.node import Node
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
         from rosbags.typesys import Stores, get_typestore
