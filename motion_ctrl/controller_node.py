@@ -76,7 +76,7 @@ class ControllerNode(ros_params.RegisterNode):
         self.pub_status = {a: self.create_publisher(UInt32, md.status_topic(a), md.STATUS_QOS)
                            for a in self.axis_names}
         self.pub_diag = self.create_publisher(DiagnosticArray, md.DIAGNOSTICS, 10)
-        self.create_subscription(JointState, md.ENCODERS, self._on_encoders, qos)
+        self.create_subscription(JointState, md.ENCODERS, self._on_encoders, md.SERVO_READ_QOS)
         self.create_subscription(JointState, md.TARGET_POSITION, self._on_target_position, 10)
         self.create_subscription(JointState, md.TARGET_VELOCITY, self._on_target_velocity, 10)
         for a in self.axis_names:

@@ -55,7 +55,7 @@ class PlantNode(ros_params.RegisterNode):
             self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS))
         self.pub_truth = md.JointStateStream(
             self.create_publisher(JointState, md.PLANT_STATES, md.SERVO_QOS))
-        self.create_subscription(JointState, md.COMMAND, self._on_command, md.COMMAND_QOS)
+        self.create_subscription(JointState, md.COMMAND, self._on_command, md.SERVO_READ_QOS)
         self.last = None
         if self.lockstep:
             self.period_ns = round(self.period * 1e9)

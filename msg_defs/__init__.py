@@ -11,7 +11,7 @@ from msg_defs.topics import (
     TARGET_POSITION, TARGET_VELOCITY, DIAGNOSTICS, CLOCK, status_topic, service_name,
     SERVICES, motor_joint, load_joint, split_joint,
 )
-from msg_defs.qos import SERVO_QOS, STATUS_QOS, COMMAND_QOS
+from msg_defs.qos import SERVO_QOS, SERVO_READ_QOS, STATUS_QOS
 from msg_defs.joint_state import (joint_state, read_joint_state, MalformedMessage,
                                  JointStateStream)
 
@@ -19,6 +19,6 @@ __all__ = [
     'Status', 'COMMAND', 'ENCODERS', 'JOINT_STATES', 'MOTOR_STATES', 'PLANT_STATES',
     'REFERENCE_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY', 'DIAGNOSTICS', 'CLOCK',
     'status_topic', 'service_name', 'SERVICES', 'motor_joint', 'load_joint', 'split_joint',
-    'SERVO_QOS', 'STATUS_QOS', 'COMMAND_QOS', 'joint_state', 'read_joint_state',
+    'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream',
 ]

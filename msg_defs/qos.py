@@ -1,19 +1,20 @@
 """QoS profiles of the servo topics.
 
-Servo data (encoders, command, states) is a stream where only the newest sample matters: best
-effort, keep last 1 would lose nothing a servo loop needs, but rosbag and `ros2 topic echo`
-default to reliable subscriptions, and a reliable subscriber cannot match a best-effort publisher.
-So the stream is published reliable with depth 1..10 (a reliable publisher matches both kinds of
-subscriber); the loop itself never waits on it. Depth 100 keeps 0.1 s of samples for a
-reliable reader that falls behind (a recorder starved for a few ms on a loaded machine) before
-the writer drops them. Status words are reliable + transient local so a
-late subscriber sees the current word at once.
+Servo data (encoders, command, states) is a stream where only the newest sample matters to the
+loop, but rosbag and `ros2 topic echo` default to reliable subscriptions, and a reliable
+subscriber cannot match a best-effort publisher. So the streams are published reliable, KEEP_LAST
+with a history of one second at 1 kHz (SERVO_QOS): a reliable reader that falls behind for a
+moment (a recorder whose process the machine held up for 150 ms was seen losing a burst with a
+history of 100) gets every sample, and the publisher never waits. The nodes themselves read the
+streams with a short queue (SERVO_READ_QOS): a servo loop wants the newest sample, not a backlog.
+Status words are reliable + transient local so a late subscriber sees the current word at once.
 """
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
 
-SERVO_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+SERVO_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
-COMMAND_QOS = SERVO_QOS
+SERVO_READ_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                            history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
 STATUS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
