@@ -144,7 +144,7 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
     def on_command(msg):
         now = client.get_clock().now().nanoseconds * 1e-9
         transport.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
-    client.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_QOS)
+    client.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
     try:
         if not client.wait_ready(30.0):
             return {'error': 'nodes did not come up'}

@@ -28,8 +28,8 @@ class SlideClient(Node):
         self.joint = None          # latest joint_states
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
-        self.create_subscription(JointState, md.PLANT_STATES, self._on_truth, md.SERVO_QOS)
-        self.create_subscription(JointState, md.JOINT_STATES, self._on_joint, md.SERVO_QOS)
+        self.create_subscription(JointState, md.PLANT_STATES, self._on_truth, md.SERVO_READ_QOS)
+        self.create_subscription(JointState, md.JOINT_STATES, self._on_joint, md.SERVO_READ_QOS)
         for a in self.axes:
             self.create_subscription(UInt32, md.status_topic(a),
                                      lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
