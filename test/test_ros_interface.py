@@ -24,7 +24,9 @@ def three_axes(rclpy_session, tmp_path, node_env):
     d = params_dir()
     plant = NodeProcess('plant_node', d / 'plant.yaml', {'axes': axes},
                         tmp_path / 'plant.log', env=node_env)
-    controller = NodeProcess('controller_node', d / 'controller.yaml', {'axes': axes},
+    # feedback_timeout 0.1 s: a plant process on this shared VM can stall past the default 20 ms
+    controller = NodeProcess('controller_node', d / 'controller.yaml',
+                             {'axes': axes, 'feedback_timeout': 0.1},
                              tmp_path / 'controller.log', env=node_env)
     client = SlideClient(axes=('x', 'y', 'z'), name='three_axes_client')
     try:
