@@ -48,6 +48,15 @@ def _finite(x):
         return False
 
 
+def _override(name, value, configured):
+    """A per-move limit: `configured` when None, else a finite value > 0 (ValueError)."""
+    if value is None:
+        return configured
+    if not (_finite(value) and value > 0):
+        raise ValueError(f'{name} override must be finite and > 0, got {value!r}')
+    return float(value)
+
+
 class Profile:
     """Move generator of one axis; see the module docstring.
 
@@ -134,18 +143,8 @@ class Profile:
         if not _finite(target):
             raise ValueError(f'move target must be finite, got {target!r}')
         self._require_configured()
-        vmax = self.max_velocity
-        if max_velocity is not None:
-            if not (_finite(max_velocity) and max_velocity > 0):
-                raise ValueError(f'max_velocity override must be finite and > 0, '
-                                 f'got {max_velocity!r}')
-            vmax = float(max_velocity)
-        amax = self.max_acceleration
-        if max_acceleration is not None:
-            if not (_finite(max_acceleration) and max_acceleration > 0):
-                raise ValueError(f'max_acceleration override must be finite and > 0, '
-                                 f'got {max_acceleration!r}')
-            amax = float(max_acceleration)
+        vmax = _override('max_velocity', max_velocity, self.max_velocity)
+        amax = _override('max_acceleration', max_acceleration, self.max_acceleration)
         target = float(target)
         self._plan(ControlInterface.Position, target, 0.0, amax, vmax)
         self.kind = 'position'
