@@ -35,7 +35,7 @@ from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_G
                                    CONTROLLER_GLOBAL, consistency)
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
-MAX_SCHEDULE = 10.0      # s: a target stamped further ahead is not a schedule but another clock
+MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
 
 
 class ControllerNode(ros_params.RegisterNode):
@@ -61,6 +61,7 @@ class ControllerNode(ros_params.RegisterNode):
 
         # Encoder state per axis: latest counts, their stamp, when they arrived.
         self.enc = {a: None for a in self.axis_names}      # (motor, load, stamp_s)
+        self.joints = [(a, md.motor_joint(a), md.load_joint(a)) for a in self.axis_names]
         self.enc_used = {a: None for a in self.axis_names}
         # Servo time waited for a new sample, counting a late tick as at most two periods: a
         # controller that was itself held up (its queued samples not yet read) must not blame
@@ -124,10 +125,11 @@ class ControllerNode(ros_params.RegisterNode):
             self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        for a in self.axis_names:
-            m, l = counts.get(md.motor_joint(a)), counts.get(md.load_joint(a))
+        enc = self.enc
+        for a, motor, load in self.joints:
+            m, l = counts.get(motor), counts.get(load)
             if m is not None and l is not None:
-                self.enc[a] = (int(m), int(l), stamp)
+                enc[a] = (int(m), int(l), stamp)
         if self.sim_time and (self.last_tick is None or stamp > self.last_tick):
             self._tick(msg.header.stamp)
         elif self.sim_time and stamp == self.last_tick and self.pub_command.names:
@@ -204,6 +206,7 @@ class ControllerNode(ros_params.RegisterNode):
                 self.scheduled = [x for x in self.scheduled if x[0] > now + 1e-9]
                 self._move({a: t for _, a, t in due})
         names, outputs = [], []
+        age_seen = None
         for a, axis in self.axes.items():
             enc = self.enc[a]
             if enc is None:
@@ -224,7 +227,9 @@ class ControllerNode(ros_params.RegisterNode):
                 sample_dt = None if prev is None else s_stamp - prev
                 self.enc_used[a] = s_stamp
                 age = min(max(now - s_stamp, 0.0), 3 * self.period)
-                self.stats.feedback_age(age)
+                if age_seen is None:         # (one encoder message carries every axis)
+                    age_seen = age
+                    self.stats.feedback_age(age)
                 out = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
             names.append(a)
             outputs.append(out)
