@@ -2,7 +2,7 @@
 
 Plant (`lockstep: 1`, the clock) and controller (`use_sim_time: true`, ticking on encoder
 samples) as two processes. The target is stamped with the sim time at which it must start and
-published before the plant starts, so the move begins on the same tick in every run, and the
+published well before that time, so the move begins on the same tick in every run, and the
 whole run is bit-identical. Used by the lockstep test and the benchmark.
 """
 from __future__ import annotations
@@ -12,12 +12,12 @@ import os
 import pathlib
 import time
 
+from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rosgraph_msgs.msg import Clock
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 import msg_defs as md
-from motion_ctrl.client import SlideClient
 from motion_ctrl.processes import NodeProcess, params_dir
 
 
@@ -30,11 +30,16 @@ def _private_domain() -> int:
     return (base + 50 + next(_runs)) % 101 + 1
 
 
-def run_lockstep(target: float = 0.0254, start: float = 8.0, end: float = 10.0,
+def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
                  timeout: float = 60.0, log_dir=None):
-    """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second)."""
-    import pathlib
+    """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second).
+
+    The move starts at sim time `start`. The observer may find the plant late (a missed
+    discovery announcement is repeated after 3 s, ~10 s of sim time): keep `start` well after
+    that; the samples before it show the slide at rest.
+    """
     import rclpy
+    from rclpy.experimental import EventsExecutor
     d = params_dir()
     log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
     domain = _private_domain()
@@ -55,52 +60,72 @@ def run_lockstep(target: float = 0.0254, start: float = 8.0, end: float = 10.0,
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
-    client = SlideClient(name='lockstep_client', context=context)
-    truth, clock = {}, []
-    # Depth for a whole run: a slow reader must not lose samples.
-    deep = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE)
+    # The observer is the third process on two cores: it must not slow the loop it watches.
+    # It takes plant_states raw (no Python message per sample) and decodes them after the
+    # run; progress is read from the newest sample a few times a second.
+    node = Node('lockstep_observer', context=context)
+    executor = EventsExecutor(context=context)
+    executor.add_node(node)
+    pub_target = node.create_publisher(JointState, md.TARGET_POSITION, 10)
+    raw = []                      # (wall time of arrival, serialised plant_states)
+    node.create_subscription(JointState, md.PLANT_STATES,
+                             lambda b: raw.append((time.monotonic(), b)),
+                             QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE),
+                             raw=True)   # deep: a slow reader must not lose samples
 
-    def on_truth(msg):
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        truth[stamp] = tuple(msg.position) + tuple(msg.velocity)
+    def sim_time() -> float:
+        if not raw:
+            return -1.0
+        st = deserialize_message(raw[-1][1], JointState).header.stamp
+        return st.sec + st.nanosec * 1e-9
 
-    def on_clock(msg):
-        clock.append((time.monotonic(), msg.clock.sec + msg.clock.nanosec * 1e-9))
-    client.create_subscription(JointState, md.PLANT_STATES, on_truth, deep)
-    client.create_subscription(Clock, md.CLOCK, on_clock, deep)
-    controller = None
-    # The plant first: it holds t = 0 (resending it) until a controller answers, so this
-    # client sees the run from its first sample. Then the controller: the sim runs as soon as
-    # it finds the plant, and it gets the target (stamped `start`, up to 10 s ahead) when this
-    # client has found it, which takes a second or two: `start` leaves room for that.
-    plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
-                        env=_with_path(env))
+    def spin_until(predicate, seconds) -> bool:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            next_check = min(deadline, time.monotonic() + 0.05)
+            while time.monotonic() < next_check:
+                executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    plant = None
+    # The controller first, and its target: with no encoder sample it does not tick, and its
+    # sim clock stands at 0, so a target stamped `start` is scheduled for that sim time. Then
+    # the plant: the sim runs as soon as plant and controller have found each other (the
+    # plant resends t = 0 until then); this observer usually sees it from the first samples.
+    controller = NodeProcess('controller_node', d / 'controller.yaml', {'use_sim_time': 'true'},
+                             log('controller'), env=_with_path(env))
     try:
-        if not client.spin_until(lambda: clock and truth, 30.0):
-            raise RuntimeError('lockstep plant not discovered')
-        controller = NodeProcess('controller_node', d / 'controller.yaml',
-                                 {'use_sim_time': 'true'}, log('controller'),
-                                 env=_with_path(env))
-        if not client.spin_until(lambda: client.pub_target.get_subscription_count() > 0, 30.0):
+        if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
             raise RuntimeError('controller not discovered')
+        spin_until(lambda: False, 0.5)     # the controller's side of the match, too
         stamp = JointState().header.stamp
         stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
-        sent_at = clock[-1][1]
-        client.pub_target.publish(md.joint_state(stamp, ['x'], [target]))
-        if sent_at > start - 1.0:
-            raise RuntimeError(f'the target was sent at sim time {sent_at:.3f} s, too close '
-                               f'to its start at {start} s to be sure it arrived before')
-        if not client.spin_until(lambda: clock[-1][1] >= end, timeout):
+        pub_target.publish(md.joint_state(stamp, ['x'], [target]))
+        spin_until(lambda: False, 0.2)
+        plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
+                            env=_with_path(env))
+        if not spin_until(lambda: raw, 30.0):
+            raise RuntimeError('lockstep plant not discovered')
+        if not spin_until(lambda: sim_time() >= end, timeout):
             raise RuntimeError(
-                f'lockstep did not reach {end} s of sim time: stopped at {clock[-1][1]} s; '
+                f'lockstep did not reach {end} s of sim time: stopped at {sim_time()} s; '
                 f'plant exit {plant.proc.poll()}, controller exit {controller.proc.poll()}')
     finally:
-        client.destroy_node()
+        executor.shutdown()
+        node.destroy_node()
         for n in (plant, controller):
             if n is not None:
                 n.stop()
         context.try_shutdown()
-    moving = [(w, t) for w, t in clock if t > 0.0]
+    truth, moving = {}, []
+    for wall, b in raw:
+        msg = deserialize_message(b, JointState)
+        t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        truth[t_ns] = tuple(msg.position) + tuple(msg.velocity)
+        if t_ns > 0:
+            moving.append((wall, t_ns * 1e-9))
     speed = ((moving[-1][1] - moving[0][1]) / (moving[-1][0] - moving[0][0])
              if len(moving) > 1 else float('nan'))
     return truth, speed

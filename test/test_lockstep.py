@@ -4,6 +4,7 @@ import pytest
 from motion_ctrl.lockstep import run_lockstep
 
 COUNT = 0.0254 / 10000
+START = 20.0           # sim time of the move [s]
 
 
 @pytest.mark.timeout(180)
@@ -11,12 +12,12 @@ def test_same_move_twice_is_bit_identical(rclpy_session, tmp_path):
     runs = []
     for i in range(2):
         (tmp_path / str(i)).mkdir()
-        truth, speed = run_lockstep(target=0.0254, start=8.0, end=10.0,
+        truth, speed = run_lockstep(target=0.0254, start=START, end=START + 2.0,
                                     log_dir=tmp_path / str(i))
         runs.append(truth)
         print(f'run {i}: {len(truth)} samples, {speed:.2f} sim s per wall s')
     a, b = runs
-    window = [s for s in a if 8.0e9 <= s <= 10.0e9]     # the move and its settling
+    window = [s for s in a if START * 1e9 <= s <= (START + 2.0) * 1e9]   # move and settling
     common = [s for s in window if s in b]
     assert len(common) >= 1800, f'only {len(common)} common samples in the 2 s window'
     assert [a[s] for s in common] == [b[s] for s in common]       # bit-identical
