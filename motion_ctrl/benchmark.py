@@ -9,7 +9,8 @@ Sections (each prints a small table; paste the output into the README with the m
 * dds    — plant and controller as two processes over real DDS at 1 kHz and 2 kHz for 1, 6 and
            64 axes: achieved servo rate, period jitter p50/p99/max and work per tick (from the
            controller's /diagnostics), controller CPU per tick (/proc), feedback age at the tick
-           (encoder stamp -> use) and command transport (command stamp -> arrival here).
+           (encoder stamp -> use) and command transport (command stamp -> arrival at a
+           reader in a third process, as the plant receives it).
 * lockstep — sim seconds per wall second of the deterministic lockstep simulation.
 
 Speed is measured here, never asserted in a test.
@@ -122,11 +123,16 @@ def _cpu_seconds(pid: int) -> float:
 
 
 def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
+    """Loop figures over DDS. The observer (this process) reads only /diagnostics while the
+    rate is measured: a third process taking 1 kHz streams would load the two cores it shares
+    with plant and controller. The command transport is measured after, in a window of its own.
+    """
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
     import msg_defs as md
-    from motion_ctrl.client import SlideClient
     from motion_ctrl.processes import start_slide
 
     axes = [f'a{i}' for i in range(n_axes)] if n_axes > 1 else ['x']
@@ -137,32 +143,46 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
     plant, controller = start_slide(
         {'axes': axes_param, 'servo_rate': float(rate)},
         {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep})
-    client = SlideClient(axes=axes, name='bench_client')
+    node = Node('bench_observer')
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     diags, transport = [], []
-    client.create_subscription(DiagnosticArray, md.DIAGNOSTICS, diags.append, 10)
+
+    def on_diagnostics(msg):
+        for st in msg.status:
+            if st.name.endswith('servo loop'):
+                d = {kv.key: kv.value for kv in st.values}
+                if 'rate_hz' in d:
+                    diags.append(d)
 
     def on_command(msg):
-        now = client.get_clock().now().nanoseconds * 1e-9
+        now = node.get_clock().now().nanoseconds * 1e-9
         transport.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
-    client.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
+
+    def spin(seconds, until=lambda: False):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            executor.spin_once(timeout_sec=0.05)
+
+    node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
     try:
-        if not client.wait_ready(30.0):
+        spin(30.0, until=lambda: len(diags) >= 2)        # up, and a second of loop behind it
+        if len(diags) < 2:
             return {'error': 'nodes did not come up'}
-        client.spin_until(lambda: False, 1.5)          # let the loop settle in
         diags.clear()
-        transport.clear()
         cpu0, t0 = _cpu_seconds(controller.proc.pid), time.monotonic()
-        client.spin_until(lambda: False, seconds)
+        spin(seconds)
         cpu1, t1 = _cpu_seconds(controller.proc.pid), time.monotonic()
+        loops = list(diags)
+        node.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
+        spin(1.0)                                         # discovery of the new reader
+        transport.clear()
+        spin(2.0)
     finally:
-        client.destroy_node()
+        node.destroy_node()
+        executor.shutdown()
         for n in (controller, plant):
             n.stop()
-    loops = []
-    for arr in diags:
-        for st in arr.status:
-            if st.name.endswith('servo loop'):
-                loops.append({kv.key: kv.value for kv in st.values})
     if not loops:
         return {'error': 'no diagnostics'}
     f = lambda k: statistics.median(float(d[k]) for d in loops if k in d)
@@ -174,8 +194,8 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
         'work_us': f('tick_work_mean_us'),
         'cpu_us_per_tick': (cpu1 - cpu0) / ticks * 1e6 if ticks else float('nan'),
         'cpu_pct': 100 * (cpu1 - cpu0) / (t1 - t0),
-        'feedback_age_p50_us': f('feedback_age_p50_us') if 'feedback_age_p50_us' in loops[0]
-        else float('nan'),
+        'feedback_age_p50_us': f('feedback_age_p50_us'),
+        'feedback_age_p99_us': f('feedback_age_p99_us'),
         'command_transport_p50_us': _pct(transport, 50) * 1e6,
         'command_transport_p99_us': _pct(transport, 99) * 1e6,
     }
@@ -186,6 +206,8 @@ def main(argv=None) -> int:
     ap.add_argument('--sections', default='core,floor,dds,lockstep',
                     help='comma-separated subset of core,floor,dds,lockstep')
     ap.add_argument('--seconds', type=float, default=5.0, help='per DDS measurement')
+    ap.add_argument('--rates', default='1000,2000', help='servo rates of the dds section [Hz]')
+    ap.add_argument('--axes', default='1,6,64', help='axis counts of the dds section')
     a = ap.parse_args(argv)
     sections = a.sections.split(',')
     print(f'motion_ctrl benchmark — {platform.processor() or platform.machine()}, '
@@ -215,17 +237,19 @@ def main(argv=None) -> int:
         print('\n## dds (plant + controller as two processes)\n')
         print('| servo rate | axes | achieved [Hz] | % of nominal | jitter p50 / p99 / max [µs] '
               '| work per tick [µs] | controller CPU per tick [µs] (CPU %) | '
-              'command transport p50 / p99 [µs] |\n|---:|---:|---:|---:|---|---:|---|---|')
-        for rate in (1000.0, 2000.0):
-            for n in (1, 6, 64):
+              'encoder → tick p50 / p99 [µs] | command → plant p50 / p99 [µs] |'
+              '\n|---:|---:|---:|---:|---|---:|---|---|---|')
+        for rate in (float(x) for x in a.rates.split(',')):
+            for n in (int(x) for x in a.axes.split(',')):
                 r = bench_dds(rate, n, a.seconds)
                 if 'error' in r:
-                    print(f'| {rate:g} | {n} | {r["error"]} | | | | | |')
+                    print(f'| {rate:g} | {n} | {r["error"]} | | | | | | |')
                     continue
                 print(f'| {rate:g} | {n} | {r["rate_hz"]:.1f} | {r["rate_pct"]:.1f} | '
                       f'{r["jitter_p50_us"]:.0f} / {r["jitter_p99_us"]:.0f} / '
                       f'{r["jitter_max_us"]:.0f} | {r["work_us"]:.0f} | '
                       f'{r["cpu_us_per_tick"]:.0f} ({r["cpu_pct"]:.0f} %) | '
+                      f'{r["feedback_age_p50_us"]:.0f} / {r["feedback_age_p99_us"]:.0f} | '
                       f'{r["command_transport_p50_us"]:.0f} / {r["command_transport_p99_us"]:.0f} |')
     if 'lockstep' in sections:
         try:
