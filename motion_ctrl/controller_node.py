@@ -206,7 +206,7 @@ class ControllerNode(ros_params.RegisterNode):
                 self.scheduled = [x for x in self.scheduled if x[0] > now + 1e-9]
                 self._move({a: t for _, a, t in due})
         names, outputs = [], []
-        age_seen = None
+        age_recorded = False         # (one encoder message carries every axis)
         for a, axis in self.axes.items():
             enc = self.enc[a]
             if enc is None:
@@ -227,8 +227,8 @@ class ControllerNode(ros_params.RegisterNode):
                 sample_dt = None if prev is None else s_stamp - prev
                 self.enc_used[a] = s_stamp
                 age = min(max(now - s_stamp, 0.0), 3 * self.period)
-                if age_seen is None:         # (one encoder message carries every axis)
-                    age_seen = age
+                if not age_recorded:
+                    age_recorded = True
                     self.stats.feedback_age(age)
                 out = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
             names.append(a)
