@@ -31,6 +31,7 @@ import msg_defs as md
 from motion_ctrl import ros_env, ros_params
 from motion_ctrl.axis import Axis
 from motion_ctrl.diagnostics import LoopStats, diagnostics_message
+from motion_ctrl.feedback_sync import FeedbackSync
 from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
                                    CONTROLLER_GLOBAL, consistency)
 
@@ -92,6 +93,8 @@ class ControllerNode(ros_params.RegisterNode):
         # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
         self.timer = None if self.sim_time else self.create_timer(self.period,
                                                                   lambda: self._tick())
+        # Real time: the servo ticks are moved to just after the encoder samples arrive.
+        self.sync = None if self.sim_time else FeedbackSync(self.period)
         self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}')
@@ -119,6 +122,8 @@ class ControllerNode(ros_params.RegisterNode):
 
     # -- inputs ---------------------------------------------------------------------------------
     def _on_encoders(self, msg: JointState) -> None:
+        if self.sync is not None:
+            self.sync.arrived(time.perf_counter())
         try:
             counts = md.read_joint_state(msg, 'position')
         except md.MalformedMessage as e:
@@ -190,6 +195,9 @@ class ControllerNode(ros_params.RegisterNode):
         t_start = time.perf_counter()
         if stamp_msg is None:
             stamp = self.get_clock().now().to_msg()
+            period = self.sync.tick(t_start)
+            if period is not None:
+                self.timer.timer_period_ns = round(period * 1e9)
         else:
             stamp = stamp_msg
         now = stamp.sec + stamp.nanosec * 1e-9
@@ -251,8 +259,9 @@ class ControllerNode(ros_params.RegisterNode):
         self.stats.work(time.perf_counter() - t_start)
 
     def _publish_diagnostics(self) -> None:
+        extra = {} if self.sync is None else {'timer_phase_shifts': self.sync.shifts}
         self.pub_diag.publish(diagnostics_message(
-            self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes))
+            self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes, extra))
         self.stats.reset_window()
 
 

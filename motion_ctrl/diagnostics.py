@@ -62,7 +62,9 @@ class LoopStats:
         self.n = self.nw = self.na = 0
 
 
-def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict):
+def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
+                        extra: dict | None = None):
+    """extra: more values of the servo loop's status (name -> number)."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     arr = DiagnosticArray()
     arr.header.stamp = stamp
@@ -77,7 +79,7 @@ def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict):
     else:
         loop.level, loop.message = DiagnosticStatus.WARN, 'no ticks yet'
     loop.values = [KeyValue(key='nominal_rate_hz', value=f'{nominal:g}')] + [
-        KeyValue(key=k, value=f'{v:.6g}') for k, v in s.items()]
+        KeyValue(key=k, value=f'{v:.6g}') for k, v in (s | (extra or {})).items()]
     arr.status.append(loop)
     for name, axis in axes.items():
         st = DiagnosticStatus(name=f'{node_name}: axis {name}', hardware_id=name)
