@@ -5,7 +5,8 @@ A thin shell: parameters, topics, services and the timer are translated into cal
 parameter and changes nothing) and staged in the post-set callback; the next servo tick applies
 everything staged at once, so several parameters set in one call take effect together.
 Parameter services and the timer share the node's default callback group: they never run
-concurrently, no lock is needed.
+concurrently, no lock is needed. In real time the timer's phase is moved, once, to just after the
+encoder samples arrive (`motion_ctrl.feedback_sync`), so a sample does not wait up to a period.
 
 With `use_sim_time` the servo tick is driven by the encoder samples instead of a timer (like a
 drive synchronised to its fieldbus cycle): each new sample, stamped in sim time, is one tick, and
