@@ -123,8 +123,6 @@ class ControllerNode(ros_params.RegisterNode):
 
     # -- inputs ---------------------------------------------------------------------------------
     def _on_encoders(self, msg: JointState) -> None:
-        if self.sync is not None:
-            self.sync.arrived(time.perf_counter())
         try:
             counts = md.read_joint_state(msg, 'position')
         except md.MalformedMessage as e:
@@ -136,6 +134,8 @@ class ControllerNode(ros_params.RegisterNode):
             m, l = counts.get(motor), counts.get(load)
             if m is not None and l is not None:
                 enc[a] = (int(m), int(l), stamp)
+        if self.sync is not None:
+            self.sync.arrived(time.perf_counter())     # ready for a tick from now on
         if self.sim_time and (self.last_tick is None or stamp > self.last_tick):
             self._tick(msg.header.stamp)
         elif self.sim_time and stamp == self.last_tick and self.pub_command.names:
