@@ -12,33 +12,30 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
 
 import msg_defs as md
+from motion_ctrl import ros_env
 from msg_defs.status import Status
 
 
 class SlideClient(Node):
     def __init__(self, axes=('x',), name='slide_client', context=None):
         super().__init__(name, context=context)
-        from rclpy.executors import SingleThreadedExecutor
-        self.executor_ = SingleThreadedExecutor(context=self.context)
+        # (The client shares two cores with two 1 kHz nodes: the lighter executor leaves them
+        # more room.)
+        self.executor_ = ros_env.executor(self.context)
         self.executor_.add_node(self)
         self.axes = list(axes)
         self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
         self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
         self.truth = None          # latest plant_states {joint: position}
-        self.joint = None          # latest joint_states
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
         self.create_subscription(JointState, md.PLANT_STATES, self._on_truth, md.SERVO_READ_QOS)
-        self.create_subscription(JointState, md.JOINT_STATES, self._on_joint, md.SERVO_READ_QOS)
         for a in self.axes:
             self.create_subscription(UInt32, md.status_topic(a),
                                      lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
 
     def _on_truth(self, msg):
         self.truth = dict(zip(msg.name, msg.position))
-
-    def _on_joint(self, msg):
-        self.joint = msg
 
     def _on_status(self, axis, msg):
         if msg.data != self.status[axis]:

@@ -267,19 +267,12 @@ class ControllerNode(ros_params.RegisterNode):
 
 
 def spin(node) -> None:
-    """Spin on the executor that holds a 1 kHz timer best (REFERENCE.md: EventsExecutor) until
-    SIGINT or SIGTERM.
+    """Spin on ros_env.executor() until SIGINT or SIGTERM.
 
-    EventsExecutor.spin() in rclpy 9.1 busy-waits without running timers or seeing signals
-    (measured here), so it is driven with spin_once. The signals only raise a flag: the context
-    is shut down after the last callback returned, so no callback publishes on a dead context.
+    The signals only raise a flag: the context is shut down after the last callback returned,
+    so no callback publishes on a dead context.
     """
-    try:
-        from rclpy.experimental import EventsExecutor
-        executor = EventsExecutor()
-    except ImportError:
-        from rclpy.executors import SingleThreadedExecutor
-        executor = SingleThreadedExecutor()
+    executor = ros_env.executor()
     executor.add_node(node)
     stop = []
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -18,6 +18,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 import msg_defs as md
+from motion_ctrl import ros_env
 from motion_ctrl.processes import NodeProcess, params_dir
 
 
@@ -39,7 +40,6 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     that; the samples before it show the slide at rest.
     """
     import rclpy
-    from rclpy.experimental import EventsExecutor
     d = params_dir()
     log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
     domain = _private_domain()
@@ -64,7 +64,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     # It takes plant_states raw (no Python message per sample) and decodes them after the
     # run; progress is read from the newest sample a few times a second.
     node = Node('lockstep_observer', context=context)
-    executor = EventsExecutor(context=context)
+    executor = ros_env.executor(context)
     executor.add_node(node)
     pub_target = node.create_publisher(JointState, md.TARGET_POSITION, 10)
     raw = []                      # (wall time of arrival, serialised plant_states)

@@ -257,14 +257,9 @@ class Recorder:
 
     # -- running ----------------------------------------------------------------------------
     def _make_executor(self):
-        try:
-            from rclpy.experimental import EventsExecutor
-            executor = EventsExecutor(context=self.context)
-            self._events = True
-        except ImportError:
-            from rclpy.executors import SingleThreadedExecutor
-            executor = SingleThreadedExecutor(context=self.context)
-            self._events = False
+        from motion_ctrl import ros_env
+        executor = ros_env.executor(self.context)
+        self._events = type(executor).__name__ == 'EventsExecutor'
         executor.add_node(self.node)
         return executor
 

@@ -1,4 +1,4 @@
-"""Network hygiene for every motion_ctrl process that uses ROS.
+"""Network hygiene, and the executor, for every motion_ctrl process that uses ROS.
 
 DDS discovery stays on this host unless the user chose otherwise
 (ROS_AUTOMATIC_DISCOVERY_RANGE; Kilted ignores ROS_LOCALHOST_ONLY). Tools that start their own
@@ -18,3 +18,15 @@ def private_domain() -> int:
     if os.environ.get('ROS_DOMAIN_ID', '0') in ('', '0'):
         os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
     return int(os.environ['ROS_DOMAIN_ID'])
+
+
+def executor(context=None):
+    """The executor that holds a 1 kHz loop best here (REFERENCE.md: EventsExecutor, about half
+    the CPU of SingleThreaded), SingleThreaded where rclpy has no EventsExecutor (before Jazzy
+    7.1.4). Drive it with spin_once: in rclpy 9.1 EventsExecutor.spin() busy-waits without
+    running timers or seeing signals."""
+    try:
+        from rclpy.experimental import EventsExecutor as Executor
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor as Executor
+    return Executor(context=context)

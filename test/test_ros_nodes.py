@@ -21,10 +21,6 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-try:                                                   # half the CPU of SingleThreaded here
-    from rclpy.experimental import EventsExecutor as ProbeExecutor  # noqa: E402
-except ImportError:                                    # rclpy before Jazzy 7.1.4
-    from rclpy.executors import SingleThreadedExecutor as ProbeExecutor  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rcl_interfaces.msg import ParameterType  # noqa: E402
@@ -72,6 +68,9 @@ class Probe(SlideClient):
         self.joint_count = 0
         self.ref_log = deque(maxlen=30000)     # (stamp, position, velocity)
         self.diag = []                         # (monotonic, DiagnosticArray)
+        self.joint = None                      # latest joint_states
+        self.create_subscription(JointState, md.JOINT_STATES, self._on_joint,
+                                 md.SERVO_READ_QOS)
         self.create_subscription(JointState, md.REFERENCE_STATES, self._on_reference,
                                  md.SERVO_QOS)
         self.create_subscription(DiagnosticArray, md.DIAGNOSTICS,
@@ -83,14 +82,10 @@ class Probe(SlideClient):
             name: self.create_client(SetBool if kind == 'SetBool' else Trigger,
                                      md.service_name(axis, name))
             for name, kind in md.SERVICES.items()}
-        # The probe shares 2 cores with two 1 kHz nodes: the lighter executor keeps the loop's
-        # latency down (measured: EventsExecutor 25 % CPU, SingleThreaded 54 % for 3 streams).
-        self._executor = ProbeExecutor()
-        self._executor.add_node(self)
 
     # -- subscriptions ---------------------------------------------------------------------------
     def _on_joint(self, msg):
-        super()._on_joint(msg)
+        self.joint = msg
         i = list(msg.name).index(self.axis)
         self.joint_log.append((_stamp(msg), msg.position[i], msg.velocity[i], msg.effort[i]))
         self.joint_count += 1
@@ -112,15 +107,6 @@ class Probe(SlideClient):
         self.ref_log.append((_stamp(msg), msg.position[i], msg.velocity[i]))
 
     # -- spinning --------------------------------------------------------------------------------
-    def spin_until(self, predicate, timeout: float) -> bool:
-        """Own executor (the node stays added): the global one re-adds the node every call."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if predicate():
-                return True
-            self._executor.spin_once(timeout_sec=0.01)
-        return bool(predicate())
-
     def spin_for_messages(self, n: int, timeout: float = 2.0) -> list:
         """The next n joint_states samples."""
         start = self.joint_count
