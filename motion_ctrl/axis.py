@@ -494,7 +494,8 @@ class Axis:
 
         sample_dt: time between this encoder sample and the previous one (from their stamps),
         None = dt (sampled in step with the loop), 0 = no new sample since the last tick (the
-        velocity estimates are kept rather than read as a stop).
+        velocity estimates are kept rather than read as a stop). Settled time is counted in
+        sample time.
         age: how old the sample is at this tick [s]. Over DDS a sample is 0..2 ms old; compared
         with the command of *now* it would read as a following error of velocity × age (at
         0.1 m/s, 1 ms is 40 counts) and jitter the output. So the error is taken against the
@@ -562,10 +563,13 @@ class Axis:
             target_stopped=velocity == 0.0 and not p.moving, half_count=self._half)
         self.output = out
 
-        bits = self.settling.step(dt, position, velocity, p.done, actual_pos + offset,
-                                  actual_vel)
+        # Settled time, and the sampled loop's judgements, advance with the encoder samples: a
+        # tick without a new one (the feedback held up, within feedback_timeout) shows nothing
+        # new, and a frozen sample must not make a move look settled.
+        bits = self.settling.step(sample_dt, position, velocity, p.done,
+                                  actual_pos + offset, actual_vel)
         if self._sampled_fb and self.target is not None:
-            bits = self._sampled_step(dt, motor_counts, bits)
+            bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
         return out
 
@@ -587,11 +591,10 @@ class Axis:
         """Galil's #CORRECT after each move; MOTION_DONE only when the load is there."""
         s = self.sampled
         load_error = self.target - self.load_pos
-        v2 = s.update(dt, profile_done=self.profile.done,
-                      motor_settled=bool(bits & _DONE),
-                      motor_counts=int(motor_counts),
-                      load_error_counts=round(load_error * self._load_cpm),
-                      motor_error=self.following_error, load_error=load_error)
+        v2 = None if dt <= 0.0 else s.update(
+            dt, profile_done=self.profile.done, motor_settled=bool(bits & _DONE),
+            motor_counts=int(motor_counts), load_error_counts=round(load_error * self._load_cpm),
+            motor_error=self.following_error, load_error=load_error)
         if v2 is not None:
             self._correct_by(v2)
             bits = self.settling._bits

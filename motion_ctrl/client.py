@@ -16,6 +16,9 @@ from motion_ctrl import ros_env
 from msg_defs.status import Status
 
 
+FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
+
+
 class SlideClient(Node):
     def __init__(self, axes=('x',), name='slide_client', context=None):
         super().__init__(name, context=context)
@@ -52,15 +55,26 @@ class SlideClient(Node):
 
     def wait_ready(self, timeout: float = 15.0) -> bool:
         """Discovery done and the loop running: subscribers matched, status and truth seen."""
-        return self.spin_until(
-            lambda: self.pub_target.get_subscription_count() > 0 and self.truth is not None
-            and all(s is not None and s & Status.ENABLED for s in self.status.values()),
-            timeout)
+        return self.spin_until(lambda: not self.not_ready(), timeout)
+
+    def not_ready(self) -> str:
+        """What wait_ready still waits for ('' when ready)."""
+        if self.pub_target.get_subscription_count() == 0:
+            return 'no controller subscribed to target_position yet'
+        if self.truth is None:
+            return 'no plant_states received yet'
+        words = {a: s for a, s in self.status.items() if s is None or not s & Status.ENABLED}
+        if words:
+            return 'axes not enabled: ' + ', '.join(
+                f'{a} ' + ('no status' if s is None else repr(Status(s))) for a, s in words.items())
+        return ''
 
     def move(self, targets: dict, timeout: float = 5.0):
         """Publish a target set; wait until every axis reports MOTION_DONE after MOVING.
 
-        Returns seconds from publish to the last MOTION_DONE, or None on timeout.
+        Returns seconds from publish to the last MOTION_DONE, or None on timeout or when an axis
+        faulted instead (a fault opens the loop, which also raises MOTION_DONE): `status` then
+        shows the fault bits.
         """
         msg = md.joint_state(self.get_clock().now().to_msg(), list(targets),
                              list(targets.values()))
@@ -76,7 +90,10 @@ class SlideClient(Node):
                 elif seen_moving and word & Status.MOTION_DONE:
                     return True
             return False
-        if not self.spin_until(lambda: all(done(a) for a in targets), timeout):
+        def faulted():
+            return any(w & FAULTS for a in targets for _, w in self.status_log[a][marks[a]:])
+        if not self.spin_until(lambda: faulted() or all(done(a) for a in targets), timeout) \
+                or faulted():
             return None
         last = max(next(t for t, w in reversed(self.status_log[a]) if w & Status.MOTION_DONE)
                    for a in targets)

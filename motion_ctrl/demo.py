@@ -43,7 +43,8 @@ def main(argv=None) -> int:
     code = 0
     try:
         if not client.wait_ready(20.0):
-            print('demo: the nodes did not come up; see the logs', file=sys.stderr)
+            print(f'demo: the nodes did not come up ({client.not_ready()}); see the logs',
+                  file=sys.stderr)
             return 1
         recorder = Recorder(bag).start()
         if not recorder.wait_ready(10.0):

@@ -560,3 +560,25 @@ def test_stop_that_would_pass_a_soft_limit_brakes_to_it():
     ramp = a[1:-1][a[1:-1] < -1e-6]
     needed = 0.08 ** 2 / (2 * left)
     assert np.median(ramp) == pytest.approx(-1.02 * needed, rel=1e-3)   # brakes from the start
+
+
+@pytest.mark.parametrize('feedback', ['dual', 'sampled'])
+def test_settled_time_counts_only_ticks_with_a_new_encoder_sample(feedback):
+    """Feedback held up (ticks without a new sample, within feedback_timeout, as over DDS when
+    the encoder process stalls) adds no settled time and lets the sampled loop judge nothing:
+    MOTION_DONE comes a settling time of fresh samples after the criteria hold, however long
+    the samples stopped in between. (A frozen sample looks perfectly still.)"""
+    h = Harness(DEFAULTS | {'settling_time': SETTLE, 'feedback': feedback})
+    a = h.axis
+    assert a.move_to(INCH)[0]
+    assert h.run(5.0, until=lambda h: h.axis.settling.settle_start is not None)
+    moves = a.sampled.moves
+    m, l = h.plant.encoder_counts()
+    for _ in range(round(4 * SETTLE / T)):                    # 200 ms without a new sample
+        a.update(T, m, l, sample_dt=0.0)
+        assert not a.status & S.MOTION_DONE
+    assert a.sampled.moves == moves                           # no correction from a frozen sample
+    resumed = h.time
+    assert h.run(3.0, until=lambda h: h.axis.status & S.MOTION_DONE)
+    assert h.time - resumed >= SETTLE - 2 * T
+    assert abs(h.plant.x_l - INCH) <= INCH / 10000            # and the slide is there

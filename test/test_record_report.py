@@ -234,7 +234,7 @@ def slide(rclpy_session, tmp_path_factory):
     nodes = start_slide({'feedback_timeout': 0.2}, log_dir=logs)
     client = SlideClient(name='record_test_client')
     try:
-        assert client.wait_ready(30.0), f'slide did not come up; logs in {logs}'
+        assert client.wait_ready(30.0), f'slide did not come up ({client.not_ready()}); logs in {logs}'
         yield client
     finally:
         client.destroy_node()

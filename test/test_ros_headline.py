@@ -20,7 +20,7 @@ def slide(rclpy_session, tmp_path, request):
     plant, controller = start_slide(ROBUST | {'x.feedback': feedback}, log_dir=tmp_path)
     client = SlideClient(name=f'headline_{feedback}')
     try:
-        assert client.wait_ready(30.0), f'nodes did not come up, logs in {tmp_path}'
+        assert client.wait_ready(30.0), f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
         yield client
     finally:
         client.destroy_node()
@@ -30,9 +30,10 @@ def slide(rclpy_session, tmp_path, request):
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize('slide', ['dual', 'sampled'], indirect=True)
 def test_one_inch_after_a_reversal_lands_within_a_count(slide):
-    assert slide.move({'x': 2 * INCH}, timeout=10.0) is not None
+    assert slide.move({'x': 2 * INCH}, timeout=10.0) is not None, \
+        f'no MOTION_DONE, status {Status(slide.status["x"])!r}'
     t = slide.move({'x': INCH}, timeout=10.0)
-    assert t is not None, f'no MOTION_DONE, status {slide.status}'
+    assert t is not None, f'no MOTION_DONE, status {Status(slide.status["x"])!r}'
     slide.spin_until(lambda: False, 0.05)
     error = (slide.load_position() - INCH) / COUNT
     assert abs(error) <= 1.0, f'slide {error:+.2f} counts from the target'

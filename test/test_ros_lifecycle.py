@@ -36,7 +36,7 @@ def test_nodes_stop_cleanly_on_sigterm(rclpy_session, tmp_path, node_env):
                              log_path=tmp_path / 'controller.log', env=node_env)
     client = SlideClient(name='lifecycle_probe')
     try:
-        assert client.wait_ready(30.0), 'nodes did not come up'
+        assert client.wait_ready(30.0), f'nodes did not come up: {client.not_ready()}'
     finally:
         client.destroy_node()
         for node in (plant, controller):

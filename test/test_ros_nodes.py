@@ -294,7 +294,8 @@ def slide(rclpy_session, tmp_path_factory, node_env):
         probe = Probe()
         ready = probe.wait_ready(30.0) and probe.params.wait_for_services(10.0)
         if not ready:
-            pytest.fail('plant + controller did not come up: controller log:\n'
+            pytest.fail(f'plant + controller did not come up ({probe.not_ready()}): '
+                        'controller log:\n'
                         + LogFile(log_dir / 'controller.log').text()
                         + '\nplant log:\n' + LogFile(log_dir / 'plant.log').text())
         yield Slide(plant, controller, probe, log_dir)
