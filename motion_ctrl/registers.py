@@ -199,7 +199,8 @@ AXIS_REGISTERS = (
        'RMP PositionToleranceCoarse', min=0.0),
     _r('velocity_tolerance', 'double', 0.005, 'm/s', 'Settled / at-velocity window on the '
        'velocity.', 'RMP VelocityTolerance', min=0.0),
-    _r('settling_time', 'double', 0.02, 's', 'Time the settling criteria must hold.',
+    _r('settling_time', 'double', 0.02, 's', 'Time the settling criteria must hold (time of new '
+       'encoder samples: a held-up feedback stream adds none).',
        'RMP SettlingTime', min=0.0, max=60.0),
     _r('correction_tolerance', 'double', 1 / LOAD_COUNTS_PER_M, 'm', 'Sampled dual loop: '
        'corrections stop when the load encoder error is below this (1 count: only an exact '
