@@ -6,14 +6,18 @@ subscriber cannot match a best-effort publisher. So the streams are published re
 with a history of one second at 1 kHz (SERVO_QOS): a reliable reader that falls behind for a
 moment (a recorder whose process the machine held up for 150 ms was seen losing a burst with a
 history of 100) gets every sample, and the publisher never waits. The nodes themselves read the
-streams with a short queue (SERVO_READ_QOS): a servo loop wants the newest sample, not a backlog.
+streams best effort with a short queue (SERVO_READ_QOS): a servo loop wants the newest sample,
+not a backlog, and not the repair of a lost one: a reliable reader holds every later sample back
+until a lost one is resent, which waits for the writer's next heartbeat (up to seconds, measured
+here as feedback faults and targets seen late on a loaded machine). A best-effort reader matches
+a reliable writer; a lost sample is replaced by the next one a period later.
 Status words are reliable + transient local so a late subscriber sees the current word at once.
 """
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
 
 SERVO_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
-SERVO_READ_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+SERVO_READ_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
                             history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
 STATUS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST,
