@@ -494,8 +494,8 @@ class Axis:
 
         sample_dt: time between this encoder sample and the previous one (from their stamps),
         None = dt (sampled in step with the loop), 0 = no new sample since the last tick (the
-        velocity estimates are kept rather than read as a stop). Settled time is counted in
-        sample time.
+        velocity estimates are kept rather than read as a stop, the output is held, and no
+        settled time is counted).
         age: how old the sample is at this tick [s]. Over DDS a sample is 0..2 ms old; compared
         with the command of *now* it would read as a following error of velocity × age (at
         0.1 m/s, 1 ms is 40 counts) and jitter the output. So the error is taken against the
@@ -557,10 +557,18 @@ class Axis:
             self._compose(_DONE | (self.settling._bits & _LATCHED))
             return 0.0
 
-        out = self.servo.update(
-            dt, cmd_pos=loop_cmd, cmd_vel=velocity, cmd_acc=p.acceleration,
-            act_pos=loop_pos, act_vel=actual_vel, vel_loop_vel=actual_vel, vel_loop_acc=loop_acc,
-            target_stopped=velocity == 0.0 and not p.moving, half_count=self._half)
+        if sample_dt > 0.0:
+            # The servo law runs on new samples, over the time they cover.
+            out = self.servo.update(
+                sample_dt, cmd_pos=loop_cmd, cmd_vel=velocity, cmd_acc=p.acceleration,
+                act_pos=loop_pos, act_vel=actual_vel, vel_loop_vel=actual_vel,
+                vel_loop_acc=loop_acc, target_stopped=velocity == 0.0 and not p.moving,
+                half_count=self._half)
+        else:
+            # No new sample (feedback held up, within feedback_timeout): hold the output, as a
+            # drive holds its command over a missed fieldbus frame. Acting again on the same
+            # sample would wind the integrator up against a position that is only old.
+            out = self.output
         self.output = out
 
         # Settled time, and the sampled loop's judgements, advance with the encoder samples: a

@@ -114,6 +114,9 @@ class PlantNode(ros_params.RegisterNode):
         self.last = now
         if dt <= 0.0:
             return
+        if dt > 20 * self.period:     # the simulation fell behind real time: say so
+            self.get_logger().warning(f'plant held up {dt * 1e3:.0f} ms (integrated as one '
+                                      f'step of at most 100 ms)', throttle_duration_sec=1.0)
         dt = min(dt, 0.1)             # a stalled process does not integrate a huge step
         stale = self.command_time is None or now - self.command_time > COMMAND_TIMEOUT
         for a, plant in self.plants.items():

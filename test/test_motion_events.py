@@ -582,3 +582,19 @@ def test_settled_time_counts_only_ticks_with_a_new_encoder_sample(feedback):
     assert h.run(3.0, until=lambda h: h.axis.status & S.MOTION_DONE)
     assert h.time - resumed >= SETTLE - 2 * T
     assert abs(h.plant.x_l - INCH) <= INCH / 10000            # and the slide is there
+
+
+def test_ticks_without_a_new_sample_hold_the_output_and_the_integrator():
+    """A tick without a new encoder sample acts on nothing new: the output is held (a drive
+    over a missed fieldbus frame) and the integrator does not wind up against the old sample;
+    the next new sample is acted on over the time it covers."""
+    h = Harness(DEFAULTS)
+    a = h.axis
+    assert a.move_to(INCH)[0]
+    h.run(0.1)                                   # mid-move: error and integrator are busy
+    m, l = h.plant.encoder_counts()
+    out, integral = a.output, a.servo.integral
+    for _ in range(20):
+        assert a.update(T, m, l, sample_dt=0.0) == out
+    assert a.servo.integral == integral
+    assert a.update(T, m, l, sample_dt=21 * T) != out    # a new sample is acted on again
