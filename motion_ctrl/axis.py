@@ -601,7 +601,8 @@ class Axis:
         load_error = self.target - self.load_pos
         v2 = None if dt <= 0.0 else s.update(
             dt, profile_done=self.profile.done, motor_settled=bool(bits & _DONE),
-            motor_counts=int(motor_counts), load_error_counts=round(load_error * self._load_cpm),
+            motor_counts=int(motor_counts), load_counts=round(self.load_pos * self._load_cpm),
+            load_error_counts=round(load_error * self._load_cpm),
             motor_error=self.following_error, load_error=load_error)
         if v2 is not None:
             self._correct_by(v2)

@@ -14,8 +14,10 @@
 
   "Motion complete" here is the profile finished and the motor loop settled (RMP criteria on
   the motor encoder), or, when stiction keeps the motor loop from settling, the motor encoder
-  still (within one count) for STILL_FACTOR settling times: the slide is read at rest, and the
-  −TE term takes care of a motor that stopped short of its command.
+  still (within one count) for STILL_FACTOR settling times; and in either case the load
+  encoder still (within one count) for a settling time: the slide is read at rest (it can coast
+  on into the gap after the motor stopped), and the −TE term takes care of a motor that stopped
+  short of its command.
   The sequence ends when |V1| < correction_tolerance (the load is where it should be) or after
   correction_max_moves.
 """
@@ -42,6 +44,8 @@ class SampledCorrection:
         self.exhausted = False        # ended by correction_max_moves, not by the tolerance
         self._still_ref = None
         self._still_time = 0.0
+        self._load_ref = None
+        self._load_still = 0.0
         self.tolerance_counts = 1
         self.max_moves = 20
         self.settle_time = 0.02
@@ -56,12 +60,12 @@ class SampledCorrection:
     def start(self) -> None:
         """A new move began: its end will be followed by corrections."""
         self.phase, self.moves, self.exhausted = self.MOVING, 0, False
-        self._still_ref = None
+        self._still_ref = self._load_ref = None
 
     def start_now(self) -> None:
         """`<axis>/correct`: run the correction loop from where the axis is."""
         self.phase, self.moves, self.exhausted = self.CORRECTING, 0, False
-        self._still_ref = None
+        self._still_ref = self._load_ref = None
 
     def cancel(self) -> None:
         self.phase = self.IDLE
@@ -75,19 +79,26 @@ class SampledCorrection:
         return self.phase == self.DONE
 
     def update(self, dt: float, *, profile_done: bool, motor_settled: bool, motor_counts: int,
-               load_error_counts: int, motor_error: float, load_error: float):
+               load_counts: int, load_error_counts: int, motor_error: float,
+               load_error: float):
         """One tick. Returns V2 [m] to add to the motor command when a correction move is due,
         else None."""
         if self.phase not in (self.MOVING, self.CORRECTING):
             return None
         if not profile_done:
-            self._still_ref = None
+            self._still_ref = self._load_ref = None
             return None
         if self._still_ref is None or abs(motor_counts - self._still_ref) > 1:
             self._still_ref, self._still_time = motor_counts, 0.0
         else:
             self._still_time += dt
+        if self._load_ref is None or abs(load_counts - self._load_ref) > 1:
+            self._load_ref, self._load_still = load_counts, 0.0
+        else:
+            self._load_still += dt
         if not motor_settled and self._still_time + 1e-9 < STILL_FACTOR * self.settle_time:
+            return None
+        if self._load_still + 1e-9 < self.settle_time:
             return None
         if abs(load_error_counts) < self.tolerance_counts:
             self.phase = self.DONE
@@ -97,5 +108,5 @@ class SampledCorrection:
             return None
         self.moves += 1
         self.phase = self.CORRECTING
-        self._still_ref = None
+        self._still_ref = self._load_ref = None
         return load_error - motor_error          # V2 = V1 − TE
