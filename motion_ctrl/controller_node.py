@@ -38,6 +38,9 @@ from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_G
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
+# s of encoder samples before the loop closes at start-up (real time): while DDS discovery
+# settles, a stream can pause for longer than feedback_timeout right after its first sample.
+STREAM_SETTLE = 0.5
 
 
 class ControllerNode(ros_params.RegisterNode):
@@ -65,6 +68,7 @@ class ControllerNode(ros_params.RegisterNode):
         self.enc = {a: None for a in self.axis_names}      # (motor, load, stamp_s)
         self.joints = [(a, md.motor_joint(a), md.load_joint(a)) for a in self.axis_names]
         self.enc_used = {a: None for a in self.axis_names}
+        self.first_sample = {}                             # axis -> stamp of its first sample
         # Servo time waited for a new sample, counting a late tick as at most two periods: a
         # controller that was itself held up (its queued samples not yet read) must not blame
         # the encoders; a plant that stopped sending is still caught after feedback_timeout.
@@ -226,8 +230,10 @@ class ControllerNode(ros_params.RegisterNode):
             else:
                 self.waited[a] += min(dt, 2 * self.period)
             stale = self.waited[a] > self.feedback_timeout
-            if stale and not axis.homed:
-                continue                 # no fresh sample yet since start-up: keep waiting
+            if not axis.homed:
+                first = self.first_sample.setdefault(a, s_stamp)
+                if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
+                    continue             # the encoder stream is not established yet: wait
             if stale:
                 axis.feedback_fault()
                 out = axis.update(dt, motor, load, sample_dt=0.0)
