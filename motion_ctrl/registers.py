@@ -206,8 +206,9 @@ AXIS_REGISTERS = (
        'corrections stop when the load encoder error is below this (1 count: only an exact '
        'reading ends them).', 'Galil example: |V2| < 2 linear counts',
        min=0.0, min_exclusive=True),
-    _r('correction_max_moves', 'integer', 50, 'count', 'Sampled dual loop: most correction moves '
-       'per move (a reversal inside the gap can take one per count of backlash).', '',
+    _r('correction_max_moves', 'integer', 200, 'count', 'Sampled dual loop: most correction '
+       'moves per move (a reversal inside the gap can take one per count of backlash, twice '
+       'over when the slide overshoots: 28 in the headline, 50 and more over DDS).', '',
        min=0, max=1000),
 )
 
