@@ -53,6 +53,26 @@ class SlideClient(Node):
             self.executor_.spin_once(timeout_sec=0.01)
         return bool(predicate())
 
+    def answer(self, send, timeout: float = 10.0, resend_after: float = 1.0):
+        """The response to a service request; `send()` sends it and returns the future.
+
+        A request not answered within `resend_after` seconds is sent again (use it for requests
+        that may be repeated: parameter services, enable, stop, reset, ...): until discovery has
+        matched the server's response writer with our response reader, which can lag behind
+        the request side by more than a second on a loaded machine, Fast DDS drops a response it
+        cannot deliver within 100 ms (ros2/rmw_fastrtps#418). Raises TimeoutError.
+        """
+        futures = [send()]
+        start = time.monotonic()
+        while not any(f.done() for f in futures):
+            elapsed = time.monotonic() - start
+            if elapsed >= timeout:
+                raise TimeoutError(f'no answer in {timeout:g} s to {len(futures)} request(s)')
+            if elapsed >= len(futures) * resend_after:
+                futures.append(send())
+            self.executor_.spin_once(timeout_sec=0.01)
+        return next(f for f in futures if f.done()).result()
+
     def wait_ready(self, timeout: float = 15.0) -> bool:
         """Discovery done and the loop running: subscribers matched, status and truth seen."""
         return self.spin_until(lambda: not self.not_ready(), timeout)

@@ -13,11 +13,6 @@ COUNT = 0.0254 / 10000
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
 
-def _wait(client, future, timeout=10.0):
-    assert client.spin_until(future.done, timeout), 'no answer from the parameter service'
-    return future.result()
-
-
 @pytest.fixture
 def three_axes(rclpy_session, tmp_path, node_env):
     axes = "['x','y','z']"   # quoted: a bare y is YAML for true
@@ -49,9 +44,10 @@ def test_three_axes_move_to_different_targets_at_once(three_axes):
     params = AsyncParameterClient(three_axes, 'controller')
     assert params.wait_for_services(10.0)
     from rclpy.parameter import Parameter
-    res = _wait(three_axes, params.set_parameters([Parameter('y.max_velocity', value=0.01)]))
+    res = three_axes.answer(
+        lambda: params.set_parameters([Parameter('y.max_velocity', value=0.01)]))
     assert res.results[0].successful
-    got = _wait(three_axes, params.get_parameters(
+    got = three_axes.answer(lambda: params.get_parameters(
         ['x.max_velocity', 'y.max_velocity', 'z.max_velocity'])).values
     assert [v.double_value for v in got] == [0.1, 0.01, 0.1]
 
@@ -62,8 +58,8 @@ def _dump(client, node_name):
     from rclpy.parameter import parameter_value_to_python
     p = AsyncParameterClient(client, node_name)
     assert p.wait_for_services(10.0)
-    names = _wait(client, p.list_parameters()).result.names
-    values = _wait(client, p.get_parameters(names)).values
+    names = client.answer(p.list_parameters).result.names
+    values = client.answer(lambda: p.get_parameters(names)).values
     return {n: parameter_value_to_python(v) for n, v in zip(names, values)}, p
 
 
@@ -93,7 +89,7 @@ def test_yaml_load_and_dump_round_trip(rclpy_session, tmp_path, node_env, node, 
         new = {k: v * 1.5 for k, v in changed.items()}
         other = tmp_path / 'other.yaml'
         other.write_text(yaml.safe_dump({node: {'ros__parameters': new}}))
-        results = _wait(client, params.load_parameter_file(str(other)))
+        results = client.answer(lambda: params.load_parameter_file(str(other)))
         assert all(r.successful for r in results.results)
         again, _ = _dump(client, node)
         for k, v in new.items():
