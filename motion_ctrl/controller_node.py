@@ -229,12 +229,19 @@ class ControllerNode(ros_params.RegisterNode):
                 self.waited[a] = 0.0
             else:
                 self.waited[a] += min(dt, 2 * self.period)
+                if self.waited[a] > self.stats.feedback_wait_max:
+                    self.stats.feedback_wait_max = self.waited[a]
             stale = self.waited[a] > self.feedback_timeout
             if not axis.homed:
                 first = self.first_sample.setdefault(a, s_stamp)
                 if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
                     continue             # the encoder stream is not established yet: wait
             if stale:
+                if axis.enabled:
+                    self.get_logger().error(
+                        f'{a}: FEEDBACK_FAULT: no new encoder sample for '
+                        f'{self.waited[a] * 1e3:.0f} ms of servo time (the last is stamped '
+                        f'{(now - s_stamp) * 1e3:.0f} ms ago); loop opened, call {a}/reset')
                 axis.feedback_fault()
                 out = axis.update(dt, motor, load, sample_dt=0.0)
             else:

@@ -19,6 +19,9 @@ class LoopStats:
         self.ages = np.empty(capacity)
         self.n = self.nw = self.na = 0
         self.overruns_total = 0
+        # Longest servo time an axis waited for a new encoder sample (the feedback watchdog's
+        # measure: FEEDBACK_FAULT when it exceeds feedback_timeout).
+        self.feedback_wait_max = 0.0
 
     def period(self, dt: float) -> None:
         if self.n < len(self.periods):
@@ -55,11 +58,13 @@ class LoopStats:
             'tick_work_max_us': float(w.max() * 1e6) if len(w) else 0.0,
             'overruns_total': self.overruns_total,
         } | ({'feedback_age_p50_us': float(np.percentile(self.ages[:self.na], 50) * 1e6),
-              'feedback_age_p99_us': float(np.percentile(self.ages[:self.na], 99) * 1e6)}
+              'feedback_age_p99_us': float(np.percentile(self.ages[:self.na], 99) * 1e6),
+              'feedback_wait_max_ms': self.feedback_wait_max * 1e3}
              if self.na else {})
 
     def reset_window(self) -> None:
         self.n = self.nw = self.na = 0
+        self.feedback_wait_max = 0.0
 
 
 def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
