@@ -65,7 +65,8 @@ def main(argv=None) -> int:
             recorder.stop()
         client.destroy_node()
         rclpy.try_shutdown()
-        rcs = [n.stop() for n in nodes]
+        # The controller first: a plant that stops first leaves it a FEEDBACK_FAULT to report.
+        rcs = [n.stop() for n in reversed(nodes)]
         print('demo: nodes stopped (exit codes ' + ', '.join(map(str, rcs)) + ')')
     if recorder is not None:
         try:

@@ -115,7 +115,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     finally:
         executor.shutdown()
         node.destroy_node()
-        for n in (plant, controller):
+        for n in (controller, plant):
             if n is not None:
                 n.stop()
         context.try_shutdown()

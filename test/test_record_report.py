@@ -223,23 +223,21 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory):
+def slide(rclpy_session, tmp_path_factory, slow_watchdog):
     from motion_ctrl.client import SlideClient
     from motion_ctrl.processes import start_slide
     logs = tmp_path_factory.mktemp('slide_logs')
-    # A loaded 2-core CI VM (controller, plant, recorder, checker and this client all in Python)
-    # can hold an encoder message back for more than the default 20 ms: the controller would
-    # open the loop with FEEDBACK_FAULT and refuse the moves. The recording is under test here,
-    # not the feedback watchdog.
-    nodes = start_slide({'feedback_timeout': 0.2}, log_dir=logs)
+    # The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording
+    # is under test here, not the feedback watchdog.
+    plant, controller = start_slide(slow_watchdog, log_dir=logs)
     client = SlideClient(name='record_test_client')
     try:
         assert client.wait_ready(30.0), f'slide did not come up ({client.not_ready()}); logs in {logs}'
         yield client
     finally:
         client.destroy_node()
-        for n in nodes:
-            n.stop()
+        controller.stop()
+        plant.stop()
 
 
 @pytest.fixture(scope='module')

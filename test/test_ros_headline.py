@@ -8,16 +8,12 @@ from motion_ctrl.processes import start_slide
 
 INCH = 0.0254
 COUNT = INCH / 10000
-# The plant is a Python process on a shared 2-core VM: it can stall for more than the default
-# 20 ms, which (correctly) opens the loop with FEEDBACK_FAULT. These tests are about positioning,
-# so they allow 0.1 s, as test_ros_nodes does.
-ROBUST = {'feedback_timeout': 0.1}
 
 
 @pytest.fixture
-def slide(rclpy_session, tmp_path, request):
+def slide(rclpy_session, tmp_path, request, slow_watchdog):
     feedback = request.param
-    plant, controller = start_slide(ROBUST | {'x.feedback': feedback}, log_dir=tmp_path)
+    plant, controller = start_slide(slow_watchdog | {'x.feedback': feedback}, log_dir=tmp_path)
     client = SlideClient(name=f'headline_{feedback}')
     try:
         assert client.wait_ready(30.0), f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'

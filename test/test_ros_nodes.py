@@ -41,14 +41,9 @@ except ImportError:
 
 INCH = 0.0254
 COUNT = 2.54e-6                 # one linear (load encoder) count [m]
-# On this 2-core VM, loaded by parallel runs, a node process can stall for 100-250 ms (measured:
-# gaps in the plant's own encoder stamps). The default 20 ms encoder watchdog then opens the loop
-# (FEEDBACK_FAULT); these tests are about the ROS interface, so it is widened to 0.1 s here
-# (FEEDBACK_FAULT itself is unit-tested). Not more: on stale feedback the loop winds up and the
-# plant then integrates a saturated command, so a wide watchdog turns a stall into a runaway.
-# The fatal following error stays at its default for the same reason; the `axis` fixture
-# repairs a fault a stall caused, so one stall costs one test, not the module.
-ROBUST_PARAMS = {'feedback_timeout': 0.1}
+# The encoder watchdog is widened (conftest.slow_watchdog: DDS discovery holds streams up for
+# ~0.33 s) and tested on its own at the end, when the plant stops. The `axis` fixture repairs a
+# fault a stall caused, so one stall costs one test, not the module.
 
 FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
 
@@ -179,10 +174,12 @@ class Probe(SlideClient):
         return f'last /diagnostics: servo loop {loop[0].message}' if loop else ''
 
     def move_and_wait(self, target: float, timeout: float = 6.0) -> None:
+        t0 = time.monotonic()
         mark = self.publish_target(target)
         assert self.spin_until(lambda: self.done_since(mark), timeout), (
-            f'move to {target} m not done in {timeout} s; status words '
-            f'{[hex(w) for w in self.words_since(mark)]}; {self.loop_note()}')
+            f'move to {target} m not done in {timeout} s; status words (s after the target '
+            f'was sent) {[(round(t - t0, 3), hex(w)) for t, w in self.status_log[self.axis][mark:]]}'
+            f'; {self.loop_note()}')
 
     def position(self) -> float:
         """Load (slide) position from joint_states."""
@@ -276,11 +273,11 @@ class Slide:
 
 
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory, node_env):
+def slide(rclpy_session, tmp_path_factory, node_env, slow_watchdog):
     log_dir = tmp_path_factory.mktemp('slide')
     plant = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path=log_dir / 'plant.log',
                         env=node_env)
-    controller = NodeProcess('controller_node', params_dir() / 'controller.yaml', ROBUST_PARAMS,
+    controller = NodeProcess('controller_node', params_dir() / 'controller.yaml', slow_watchdog,
                              log_path=log_dir / 'controller.log', env=node_env)
     probe = None
     try:
@@ -295,8 +292,8 @@ def slide(rclpy_session, tmp_path_factory, node_env):
     finally:
         if probe is not None:
             probe.destroy_node()
-        plant.stop()
         controller.stop()
+        plant.stop()
 
 
 def _ready(s: Status) -> bool:
@@ -352,15 +349,17 @@ def test_move_one_inch_over_dds(slide, axis):
 
 
 def test_off_grid_target_settles(axis):
-    """A target in round metres (5 mm from a whole-count position, 1968.5 counts) settles."""
+    """A target in round metres (5 mm from a whole-count position, 1968.5 counts) settles.
+    (Over DDS the slide now and then overshoots by a count and the dual loop must take the motor
+    back across the backlash on the integrator: about a second, not the harness' 0.15 s.)"""
     p = axis
     start = on_grid(p.position())
     target = start + 0.005 if start < 0.3 else start - 0.005
     assert abs(target / COUNT - round(target / COUNT)) > 0.4        # between two counts
     try:
-        p.move_and_wait(target, timeout=3.0)
+        p.move_and_wait(target)
     finally:
-        p.move_and_wait(on_grid(target), timeout=3.0)                  # leave it settled
+        p.move_and_wait(on_grid(target))                               # leave it settled
 
 
 # -- 2. parameters through the parameter services --------------------------------------------------
@@ -716,7 +715,7 @@ def _loop_values(msg) -> dict:
     return {kv.key: kv.value for kv in loop[0].values}
 
 
-def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
+def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis, slow_watchdog):
     """/diagnostics about once a second: the achieved rate, the period jitter and the skipped
     ticks it reports for each window are those of the ticks themselves, recomputed here from
     the reference_states stamps (one message per tick, read reliably) that fall in the window;
@@ -748,7 +747,7 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
         assert 0.0 < float(values['tick_work_mean_us']) <= float(values['tick_work_max_us'])
         # The longest wait for a new encoder sample stayed inside the watchdog (no fault).
         assert 0.0 <= float(values['feedback_wait_max_ms']) <= \
-            1e3 * ROBUST_PARAMS['feedback_timeout'], values
+            1e3 * slow_watchdog['feedback_timeout'], values
     axis_status = [st for st in msgs[-1].status if st.name.endswith('axis x')]
     assert len(axis_status) == 1
     axis_values = {kv.key: kv.value for kv in axis_status[0].values}
@@ -757,10 +756,18 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
 
 
 # -- 5. clean stop (last: it ends the module's nodes) ----------------------------------------------
-def test_nodes_stop_cleanly_on_sigint(slide):
+def test_nodes_stop_cleanly_on_sigint(axis, slide):
     """SIGINT (Ctrl-C) ends both nodes with exit code 0 and no traceback in their output.
-    SIGTERM is covered in test_ros_lifecycle.py."""
-    codes = {'plant': slide.plant.stop(), 'controller': slide.controller.stop()}
+    The plant goes first: its encoder stream stops, and the controller's watchdog opens the
+    loop (FEEDBACK_FAULT, output 0) and says so in its log. SIGTERM is covered in
+    test_ros_lifecycle.py."""
+    p = axis
+    codes = {'plant': slide.plant.stop()}
+    assert p.wait_status(lambda s: s & Status.FEEDBACK_FAULT and not s & Status.ENABLED,
+                         2.0), repr(p.word)
+    assert wait_log(p, slide.controller_log, r'x: FEEDBACK_FAULT: no new encoder sample', 1)
+    assert _efforts_now(p) == {0.0}
+    codes['controller'] = slide.controller.stop()
     assert codes == {'plant': 0, 'controller': 0}, codes
     for log in (slide.plant_log, slide.controller_log):
         text = log.text()
