@@ -89,8 +89,21 @@ class SlideClient(Node):
                 f'{a} ' + ('no status' if s is None else repr(Status(s))) for a, s in words.items())
         return ''
 
+    def move_done(self, axis: str, mark: int) -> bool:
+        """MOTION_DONE cleared and then raised again in the status words of `axis` since `mark`
+        (an index into status_log). The RMP way to wait for a move: accepting a move clears
+        MOTION_DONE. (Not MOVING: a move that ends within one servo period, a fraction of a
+        count or a tick the loaded machine skipped, never shows it.)"""
+        cleared = False
+        for _, word in self.status_log[axis][mark:]:
+            if not word & Status.MOTION_DONE:
+                cleared = True
+            elif cleared:
+                return True
+        return False
+
     def move(self, targets: dict, timeout: float = 5.0):
-        """Publish a target set; wait until every axis reports MOTION_DONE after MOVING.
+        """Publish a target set; wait until every axis has cleared and raised MOTION_DONE.
 
         Returns seconds from publish to the last MOTION_DONE, or None on timeout or when an axis
         faulted instead (a fault opens the loop, which also raises MOTION_DONE): `status` then
@@ -102,18 +115,11 @@ class SlideClient(Node):
         t0 = time.monotonic()
         self.pub_target.publish(msg)
 
-        def done(a):
-            seen_moving = False
-            for _, word in self.status_log[a][marks[a]:]:
-                if word & Status.MOVING and not word & Status.MOTION_DONE:
-                    seen_moving = True
-                elif seen_moving and word & Status.MOTION_DONE:
-                    return True
-            return False
         def faulted():
             return any(w & FAULTS for a in targets for _, w in self.status_log[a][marks[a]:])
-        if not self.spin_until(lambda: faulted() or all(done(a) for a in targets), timeout) \
-                or faulted():
+        if not self.spin_until(
+                lambda: faulted() or all(self.move_done(a, marks[a]) for a in targets),
+                timeout) or faulted():
             return None
         last = max(next(t for t, w in reversed(self.status_log[a]) if w & Status.MOTION_DONE)
                    for a in targets)

@@ -161,6 +161,24 @@ def test_position_move_event_order_and_settling_time(coarse, coarse_before_at_ta
     assert abs(h.plant.x_l - INCH) * h.plant.load_counts_per_m < 1.0
 
 
+def test_a_move_shorter_than_a_tick_shows_no_moving_but_clears_motion_done():
+    """A fifth of a count after a settled move, on a tick that came 2 ms late (as a loaded machine
+    skips one): the profile starts and ends within that tick, so no status word shows MOVING.
+    MOTION_DONE still falls on that tick and rises again once settled: the event a client waits
+    on (SlideClient.move_done)."""
+    h = Harness(DEFAULTS)
+    assert h.move(INCH) is not None
+    step = DEFAULTS['fine_position_tolerance'] / 3          # 0.5 um, a fifth of a count
+    assert h.axis.move_to(INCH + step) == (True, '')
+    m, l = h.plant.encoder_counts()
+    h.axis.update(2 * T, m, l)                               # the late tick
+    assert h.axis.profile.done and h.axis.profile.position == INCH + step
+    assert not h.axis.status & (S.MOVING | S.MOTION_DONE)
+    rec = Recorder(h)
+    assert rec.run(1.0, until=done)
+    assert not any(w & S.MOVING for w in rec.word)
+
+
 def test_disturbance_during_settling_restarts_the_timer():
     """The same move twice: undisturbed, then shoved back 4 µm (motor and slide together, over
     5 ticks) half-way through the settling time. MOTION_DONE then comes a full settling time

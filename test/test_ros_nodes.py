@@ -144,14 +144,7 @@ class Probe(SlideClient):
         return [Status(w) for _, w in self.status_log[self.axis][mark:]]
 
     def done_since(self, mark: int) -> bool:
-        """MOTION_DONE raised after MOVING, in the status words since `mark`."""
-        seen_moving = False
-        for word in self.words_since(mark):
-            if word & Status.MOVING and not word & Status.MOTION_DONE:
-                seen_moving = True
-            elif seen_moving and word & Status.MOTION_DONE:
-                return True
-        return False
+        return self.move_done(self.axis, mark)
 
     # -- commands --------------------------------------------------------------------------------
     def publish_target(self, position, names=None) -> int:
