@@ -56,10 +56,11 @@ class ControllerNode(ros_params.RegisterNode):
         self.axes: dict[str, Axis] = {}
         self.values: dict[str, dict] = {}
         for name in self.axis_names:
-            values = {r.name: ros_params.declare(self, r, f'{name}.{r.name}')
-                      for r in AXIS_REGISTERS}
-            self.values[name] = values
-            self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see main()
+            self.values[name] = {r.name: ros_params.declare(self, r, f'{name}.{r.name}')
+                                 for r in AXIS_REGISTERS}
+        self.refuse_unknown_overrides()
+        for name, values in self.values.items():
+            self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see run()
         self.staged: dict[str, dict] = {}
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._stage)
@@ -316,7 +317,9 @@ def run(node_class, args=None) -> int:
             ParameterException, ValueError) as e:
         files = [a for a in (args or sys.argv) if a.endswith(('.yaml', '.yml'))]
         where = f' (from {", ".join(files)})' if files else ''
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
+        # <name>"; the reason names the parameter too.
+        msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
         print(f'{node_class.__name__}: bad parameter{where}: {msg}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2

@@ -43,10 +43,11 @@ class PlantNode(ros_params.RegisterNode):
         self.period = 1.0 / g['publish_rate']
         self.lockstep = g['lockstep'] == 1
         self.plants: dict[str, SlidePlant] = {}
+        values = {a: {r.name: ros_params.declare(self, r, f'{a}.{r.name}')
+                      for r in PLANT_PARAMETERS} for a in self.axis_names}
+        self.refuse_unknown_overrides()
         for a in self.axis_names:
-            values = {r.name: ros_params.declare(self, r, f'{a}.{r.name}')
-                      for r in PLANT_PARAMETERS}
-            self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values)
+            self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values[a])
         self.volts = {a: 0.0 for a in self.axis_names}
         self.command_time = None
         self.add_on_set_parameters_callback(self.validate)

@@ -99,6 +99,16 @@ class RegisterNode(Node):
         return name_type_refusal(self, parameter_list,
                                  super().set_parameters_atomically(parameter_list))
 
+    def refuse_unknown_overrides(self) -> None:
+        """A start-up value (params file, `-p`) for a parameter the node does not have is a typo
+        or a file written for other axes; rclpy would ignore it without a word. Raises
+        ValueError naming it (the node then exits with that line). Call after declaring."""
+        # rclpy keeps the start-up values in Node._parameter_overrides (no public accessor).
+        unknown = sorted(set(self._parameter_overrides) - set(self._parameters))
+        if unknown:
+            raise ValueError(f'{", ".join(unknown)}: no such parameter on {self.get_name()} '
+                             f'(axes {self.axis_names})')
+
     def split(self, name):
         """'x.kp' -> ('x', 'kp') for a register of a known axis, else (None, None)."""
         axis, _, reg = name.partition('.')

@@ -65,6 +65,9 @@ BAD_FILES = {
                           ['x.coarse_position_tolerance: 1.0e-7'],
                           'x.coarse_position_tolerance'),
     'plant-backlash-negative': ('plant_node', 'plant', ['x.backlash: -1.0e-5'], 'x.backlash'),
+    # rclpy would ignore these without a word: a typo, and a register of an axis not configured
+    'unknown-register': ('controller_node', 'controller', ['x.kpp: 1.0'], 'x.kpp'),
+    'unknown-axis': ('plant_node', 'plant', ['y.backlash: 1.0e-5'], 'y.backlash'),
 }
 
 
@@ -106,6 +109,20 @@ def test_bad_params_file_exits_with_one_line(bad_runs, case):
     assert 'Traceback' not in err + out, err
     assert len(stderr) == 1, err
     assert parameter in stderr[0] and str(bad) in stderr[0], stderr[0]
+
+
+def test_malformed_params_file_exits_naming_the_file(tmp_path, node_env):
+    """A params file that is not valid YAML: rcl refuses it while rclpy starts; the node exits
+    2 at once with a line naming the file (after rcl's own log line), no traceback."""
+    bad = tmp_path / 'broken.yaml'
+    bad.write_text('controller:\n  ros__parameters:\n    x.kp: [16000.0\n')
+    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.controller_node', '--ros-args',
+                        '--params-file', str(bad)], capture_output=True, text=True, timeout=30,
+                       env=node_env)
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert 'Traceback' not in r.stderr + r.stdout, r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith('ControllerNode: bad arguments') and str(bad) in last, r.stderr
 
 
 def _alive(pid: int) -> bool:
