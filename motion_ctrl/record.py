@@ -19,8 +19,8 @@ with use_sim_time) read in the subscription callback, as `ros2 bag record` does.
 message also carries its header.stamp (the servo tick that produced it); `motion_ctrl.report`
 plots against header stamps and uses the bag time only for the header-less status words.
 
-QoS: the servo streams are subscribed reliable, keep-last 1000 (the publishers are reliable,
-depth 10: the deep reader queue absorbs a recorder that falls behind for up to a second); status
+QoS: the servo streams are subscribed reliable, keep-last 1000 (the publishers are reliable with
+the same one second of history: a recorder that falls behind for up to a second loses nothing); status
 words reliable + transient local (msg_defs.STATUS_QOS: the current word is recorded at start).
 Other topics get reliable/volatile unless every publisher offers best effort / transient local.
 The publishers' offered QoS go into the metadata, as ros2 bag does.
@@ -34,7 +34,7 @@ Throughput (measured on the 2-core VM, slide at 1 kHz = 6 streams + status, ~600
 rclpy EventsExecutor, messages written straight from the callbacks (rosbags' MCAP writer costs
 ~5-8 us per message; a writer thread would only add GIL traffic): 20-25 % of one core, no
 message lost while the machine was not starved. A subscriber descheduled for longer than the
-publishers' history (depth 10 = 10 ms at 1 kHz) loses messages inside DDS, before any recorder
+publishers' history (1000 samples = 1 s at 1 kHz) loses messages inside DDS, before any recorder
 code runs: on a machine overloaded by other jobs, check the printed counts (test/
 test_record_report.py compares them with the controller's own tick accounting).
 

@@ -316,8 +316,8 @@ def test_recording_at_servo_rate_is_complete(recording):
             for t, (x, lo, hi, n) in lost.items())
         load = os.getloadavg()[0]
         if load > 1.5 * os.cpu_count() or any(checker_missed.values()):
-            # A subscriber starved for longer than the publisher's history (10 messages =
-            # 10 ms at 1 kHz, QoS of the contract) loses messages in DDS, before any code of
+            # A subscriber starved for longer than the publisher's history (1000 messages =
+            # 1 s at 1 kHz, msg_defs.SERVO_QOS) loses messages in DDS, before any code of
             # the recorder runs; the checker losing messages too shows that the whole machine
             # was starved (e.g. by other jobs), which the recorder cannot make up for.
             pytest.xfail(f'machine overloaded (load {load:.1f} on {os.cpu_count()} cores, the '
