@@ -142,7 +142,8 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
     substep = 20000.0 if n_axes <= 6 else rate
     plant, controller = start_slide(
         {'axes': axes_param, 'servo_rate': float(rate)},
-        {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep})
+        {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep},
+        params_files=False)
     node = Node('bench_observer')
     executor = SingleThreadedExecutor()
     executor.add_node(node)

@@ -71,11 +71,14 @@ class NodeProcess:
 
 
 def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
-                log_dir=None):
-    """Plant and controller with the default params files plus overrides; returns both."""
+                log_dir=None, params_files: bool = True):
+    """Plant and controller with the default params files (which set the registers of axis x;
+    params_files=False: the register table's defaults, the same values, for any axis names)
+    plus overrides; returns both."""
     d = params_dir()
     log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
-    plant = NodeProcess('plant_node', d / 'plant.yaml', plant_params, log('plant'))
-    controller = NodeProcess('controller_node', d / 'controller.yaml', controller_params,
+    file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
+    plant = NodeProcess('plant_node', file('plant'), plant_params, log('plant'))
+    controller = NodeProcess('controller_node', file('controller'), controller_params,
                              log('controller'))
     return plant, controller
