@@ -57,9 +57,9 @@ class LoopStats:
             'tick_work_mean_us': float(w.mean() * 1e6) if len(w) else 0.0,
             'tick_work_max_us': float(w.max() * 1e6) if len(w) else 0.0,
             'overruns_total': self.overruns_total,
+            'feedback_wait_max_ms': self.feedback_wait_max * 1e3,
         } | ({'feedback_age_p50_us': float(np.percentile(self.ages[:self.na], 50) * 1e6),
-              'feedback_age_p99_us': float(np.percentile(self.ages[:self.na], 99) * 1e6),
-              'feedback_wait_max_ms': self.feedback_wait_max * 1e3}
+              'feedback_age_p99_us': float(np.percentile(self.ages[:self.na], 99) * 1e6)}
              if self.na else {})
 
     def reset_window(self) -> None:
