@@ -74,6 +74,7 @@ _LIMIT = int(Status.LIMIT)
 _CORRECTING = int(Status.CORRECTING)
 _LATCHED = int(Status.STOPPED | Status.ESTOPPED | Status.ABORTED)
 
+_S_IDLE = SampledCorrection.IDLE
 _S_MOVING = SampledCorrection.MOVING
 _S_CORRECTING = SampledCorrection.CORRECTING
 _S_DONE = SampledCorrection.DONE
@@ -258,8 +259,7 @@ class Axis:
         self.target = target
         self._guard = 0
         self.settling.start_position_move(loop_target)
-        if self._sampled_fb:
-            self.sampled.start()
+        self._start_corrections()
 
     def jog(self, velocity: float):
         if not _number(velocity) or not math.isfinite(velocity):
@@ -344,10 +344,15 @@ class Axis:
         return True, ''
 
     def correct(self):
-        """Run the sampled dual-loop correction now (Galil #CORRECT)."""
+        """Run the sampled dual-loop correction now (Galil #CORRECT): with feedback sampled, or
+        once on demand with feedback motor. A loop closed on the load encoder (load, dual) has
+        nothing to correct: refused."""
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
+        if not self._motor_side:
+            return False, (f'{self.name}: feedback {self.r["feedback"]} closes the position '
+                           'loop on the load encoder: nothing to correct')
         if self.profile.moving:          # incl. a jog cruising at constant velocity
             return False, f'{self.name}: a move is in progress'
         if self.target is None:
@@ -435,10 +440,17 @@ class Axis:
         if stop_kind is None:
             self.target = limit - self.sampled_offset
             self.settling.start_position_move(limit)
-            if self._sampled_fb:
-                self.sampled.start()
+            self._start_corrections()
 
     # -- internals ------------------------------------------------------------------------------
+    def _start_corrections(self) -> None:
+        """A position move began: with feedback sampled, corrections follow its end; otherwise
+        a correction left from <axis>/correct is over."""
+        if self._sampled_fb:
+            self.sampled.start()
+        else:
+            self.sampled.cancel()
+
     def _open_loop(self):
         self.enabled = False
         self.sampled.cancel()
@@ -450,6 +462,7 @@ class Axis:
     def _rehome_command(self):
         """Hold the present position without a bump: the command becomes the actual position."""
         self.sampled_offset = 0.0
+        self.sampled.cancel()
         if self._motor_side:
             pos = self.motor_pos - self.correction
         else:
@@ -576,7 +589,7 @@ class Axis:
         # new, and a frozen sample must not make a move look settled.
         bits = self.settling.step(sample_dt, position, velocity, p.done,
                                   actual_pos + offset, actual_vel)
-        if self._sampled_fb and self.target is not None:
+        if self.target is not None and (self._sampled_fb or self.sampled.phase != _S_IDLE):
             bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
         return out

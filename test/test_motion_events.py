@@ -330,6 +330,40 @@ def test_abort_opens_the_loop_at_once_and_reset_enable_close_it():
     assert not h.axis.status & S.ABORTED
 
 
+def test_correct_on_demand_with_motor_feedback_lands_the_slide():
+    """<axis>/correct with feedback motor (Galil #CORRECT run by hand): after the reversal the
+    slide misses by the backlash (~20 counts); one correction sequence, CORRECTING and MOVING
+    while it runs, brings it within a count and ends in MOTION_DONE. The next move plans
+    without corrections (no CORRECTING), as feedback motor does."""
+    h = Harness(DEFAULTS | {'feedback': 'motor'})
+    assert h.move(2 * INCH) is not None and h.move(INCH) is not None
+    assert h.load_error_counts(INCH) > 15.0                  # the backlash, uncorrected
+    assert h.axis.correct() == (True, '')
+    rec = Recorder(h)
+    assert rec.run(3.0, until=lambda h: h.axis.status & S.MOTION_DONE
+                   and not h.axis.status & S.CORRECTING)
+    assert any(w & S.CORRECTING and w & S.MOVING and not w & S.MOTION_DONE for w in rec.word)
+    assert 1 <= h.axis.correction_moves <= 5
+    assert abs(h.load_error_counts(INCH)) <= 1.0
+    rec = Recorder(h)
+    h.axis.move_to(2 * INCH)
+    assert rec.run(3.0, until=done)
+    assert not any(w & S.CORRECTING for w in rec.word)
+
+
+@pytest.mark.parametrize('feedback', ['dual', 'load'])
+def test_correct_refused_where_the_loop_closes_on_the_load_encoder(feedback):
+    """feedback dual or load has nothing to correct: refused with the reason, the status word
+    untouched (before the fix it showed CORRECTING and MOVING for good)."""
+    h = Harness(DEFAULTS | {'feedback': feedback})
+    h.run(0.05)
+    word = h.axis.status
+    ok, reason = h.axis.correct()
+    assert not ok and f'feedback {feedback}' in reason and 'load encoder' in reason
+    h.run(0.5)
+    assert h.axis.status == word and not word & (S.CORRECTING | S.MOVING)
+
+
 def test_fatal_following_error_aborts_reset_clears_it():
     h = Harness(dict(following_error_fatal=10e-6, following_error_warning=0.0))
     h.axis.move_to(0.01)
