@@ -62,12 +62,17 @@ class Probe(SlideClient):
         self.joint_log = deque(maxlen=30000)   # (stamp, position, velocity, effort)
         self.joint_count = 0
         self.ref_log = deque(maxlen=30000)     # (stamp, position, velocity)
+        self.command_log = deque(maxlen=30000) # (stamp, effort): every tick, read reliably
         self.diag = []                         # (monotonic, DiagnosticArray)
         self.joint = None                      # latest joint_states
         self.create_subscription(JointState, md.JOINT_STATES, self._on_joint,
                                  md.SERVO_READ_QOS)
         self.create_subscription(JointState, md.REFERENCE_STATES, self._on_reference,
                                  md.SERVO_QOS)
+        self.create_subscription(
+            JointState, md.COMMAND,
+            lambda m: self.command_log.append((_stamp(m), m.effort[list(m.name).index(axis)])),
+            md.SERVO_QOS)
         self.create_subscription(DiagnosticArray, md.DIAGNOSTICS,
                                  lambda m: self.diag.append((time.monotonic(), m)), 10)
         self.pub_encoders = self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
@@ -468,6 +473,30 @@ def test_atomic_set_of_tolerances(axis):
         result = p.set_atomically(old)
     assert result.successful, result.reason
     assert p.get_params(fine, coarse) == old
+
+
+def test_parameters_set_together_apply_on_the_same_tick(axis):
+    """bias +0.4 V with output_limit 0.2 V in one call: had bias been applied a tick before the
+    limit, that tick's command would be ~0.4 V; back to bias 0 with the limit at 10 V in one
+    call: had the limit come first, a tick would send the 0.4 V bias unclipped. Every command
+    the controller sent (read reliably) shows neither."""
+    p = axis
+    old = p.get_params('x.bias', 'x.output_limit')
+    p.spin_until(lambda: False, 0.2)
+    t0 = p.now()
+    before = [abs(e) for s, e in p.command_log if s > t0 - 0.2]
+    assert before and max(before) < 0.1, f'the axis is not at rest: {max(before, default=0)} V'
+    assert p.set_atomically({'x.bias': 0.4, 'x.output_limit': 0.2}).successful
+    p.spin_until(lambda: False, 0.3)
+    t1 = p.now()
+    result = p.set_atomically(old)
+    assert result.successful, result.reason
+    p.spin_until(lambda: False, 0.3)
+    during = [e for s, e in p.command_log if t0 < s <= t1]
+    after = [e for s, e in p.command_log if s > t1]
+    assert 0.2 in during, 'the limit never clipped the bias: the set was not applied'
+    assert max(during) <= 0.2, f'{max(during)} V: bias applied before output_limit'
+    assert after and max(after) < 0.3, f'{max(after)} V: output_limit applied before bias'
 
 
 def test_read_only_servo_rate_refused(axis):
