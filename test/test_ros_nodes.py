@@ -605,28 +605,30 @@ def test_fault_refuses_enable_until_reset(axis):
 
 def test_correct_lands_the_slide_after_a_reversal_with_motor_feedback(axis):
     """x/correct (Galil #CORRECT on demand): with feedback motor the slide misses a reversal by
-    the backlash; the service runs the correction moves on the load encoder (CORRECTING), and
-    the true slide ends within a count or two (plant_states) with MOTION_DONE."""
+    the backlash; the service runs the correction moves on the load encoder (CORRECTING) until
+    the error is below correction_tolerance (here the Galil example's 2 counts, which a loaded
+    machine reaches in a few moves), and the true slide ends there with MOTION_DONE."""
     p = axis
     start = on_grid(p.position())
     forward, back = on_grid(start + 0.005), on_grid(start + 0.0025)    # then a reversal
-    with changed(p, {'x.feedback': 'motor'}):
+    with changed(p, {'x.feedback': 'motor', 'x.correction_tolerance': 2 * COUNT}):
         p.move_and_wait(forward)
         p.move_and_wait(back)
-        p.spin_for_messages(5)
+        p.spin_until(p.slide_at_rest, 2.0)          # it can coast on into the gap
         missed = (p.load_position() - back) / COUNT
         assert missed > 10.0, f'nothing to correct: the slide is {missed:+.1f} counts off'
         mark = p.mark()
         reply = p.call('correct')
         assert reply.success, reply.message
         assert p.spin_until(lambda: p.done_since(mark) and not p.word & Status.CORRECTING,
-                            6.0), [hex(w) for w in p.words_since(mark)]
+                            10.0), [hex(w) for w in p.words_since(mark)][-20:]
         assert any(w & Status.CORRECTING for w in p.words_since(mark))
-        p.spin_for_messages(5)
+        p.spin_until(p.slide_at_rest, 2.0)
         error = (p.load_position() - back) / COUNT
         assert abs(error) <= 2.0, f'slide {error:+.2f} counts off after x/correct ' \
                                   f'({missed:+.1f} before)'
-    reply = p.call('correct')                     # feedback dual again: nothing to correct
+    p.spin_for_messages(3)                        # feedback dual again from the next tick on
+    reply = p.call('correct')
     assert not reply.success and 'load encoder' in reply.message, reply.message
 
 
