@@ -328,7 +328,6 @@ class Axis:
         if not self.enabled:
             self.enabled = True
             self._rehome_command()
-            self.settling.idle()
         return True, ''
 
     def reset(self):
@@ -460,9 +459,11 @@ class Axis:
         self._guard = 0
 
     def _rehome_command(self):
-        """Hold the present position without a bump: the command becomes the actual position."""
+        """Hold the present position without a bump: the command becomes the actual position and
+        nothing is pending (a move, its settling or a correction in progress is over)."""
         self.sampled_offset = 0.0
         self.sampled.cancel()
+        self.settling.idle()
         if self._motor_side:
             pos = self.motor_pos - self.correction
         else:
@@ -489,7 +490,6 @@ class Axis:
         self._rehome_command()
         if not self._faults:
             self.enabled = True
-            self.settling.idle()
 
     def feedback_fault(self) -> None:
         if self.enabled or not self._faults & _FEEDBACK_FAULT:

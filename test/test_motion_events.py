@@ -351,6 +351,21 @@ def test_correct_on_demand_with_motor_feedback_lands_the_slide():
     assert not any(w & S.CORRECTING for w in rec.word)
 
 
+def test_a_feedback_change_ends_a_correction_with_motion_done():
+    """feedback changed (at the next tick) while x/correct runs: the command holds where the
+    motor is and nothing is pending, so the axis reports MOTION_DONE (it used to wait for good
+    on the abandoned correction's settling)."""
+    h = Harness(DEFAULTS | {'feedback': 'motor'})
+    assert h.move(2 * INCH) is not None and h.move(INCH) is not None
+    assert h.axis.correct() == (True, '')
+    h.tick()
+    assert h.axis.status & S.CORRECTING
+    h.axis.configure(DEFAULTS | {'feedback': 'dual'})
+    h.run(0.1)
+    w = h.axis.status
+    assert w & S.MOTION_DONE and not w & (S.CORRECTING | S.MOVING), repr(w)
+
+
 @pytest.mark.parametrize('feedback', ['dual', 'load'])
 def test_correct_refused_where_the_loop_closes_on_the_load_encoder(feedback):
     """feedback dual or load has nothing to correct: refused with the reason, the status word
