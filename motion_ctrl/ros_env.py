@@ -1,11 +1,14 @@
-"""Network hygiene, and the executor, for every motion_ctrl process that uses ROS.
+"""Network hygiene, the executor, and shared-memory leftovers, for every motion_ctrl process
+that uses ROS.
 
 DDS discovery stays on this host unless the user chose otherwise
 (ROS_AUTOMATIC_DISCOVERY_RANGE; Kilted ignores ROS_LOCALHOST_ONLY). Tools that start their own
 nodes (demo, tests, benchmark) also get a ROS_DOMAIN_ID of their own when none (or 0) is set, so
 parallel runs on one machine don't see each other. Call before rclpy.init().
 """
+import fcntl
 import os
+import re
 
 
 def local_discovery() -> None:
@@ -30,3 +33,45 @@ def executor(context=None):
     except ImportError:
         from rclpy.executors import SingleThreadedExecutor as Executor
     return Executor(context=context)
+
+
+SHM_DIR = '/dev/shm'
+_SHM_LOCK = re.compile(r'^fastdds_(port\d+|[0-9a-f]{16})_(el|sl)$')
+
+
+def clean_zombie_shm(shm_dir: str = SHM_DIR) -> int:
+    """Remove the shared-memory files of Fast DDS participants whose process is gone, as
+    `fastdds shm clean` does (that tool is not in the pip wheels). Returns the files removed.
+
+    Every segment and port has a lock file (`_el`/`_sl`) that its owner holds with flock while
+    it lives; one nobody holds belongs to a dead process (a SIGKILL, a crash). Left behind, a
+    port's named mutex can stay locked, and every process that later opens that port number
+    waits 2 s for it (seen here as nodes taking 30 s to start and exit). Files of live
+    processes, of any run on this machine, are left alone.
+    """
+    try:
+        names = os.listdir(shm_dir)
+    except FileNotFoundError:
+        return 0
+    removed = 0
+    for name in names:
+        m = _SHM_LOCK.match(name)
+        if not m or _locked(os.path.join(shm_dir, name)):
+            continue
+        base = f'fastdds_{m.group(1)}'
+        for f in (name, base, f'sem.{base}_mutex'):
+            try:
+                os.remove(os.path.join(shm_dir, f))
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
+def _locked(path: str) -> bool:
+    try:
+        with open(path, 'ab') as f:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except OSError:
+        return True

@@ -1,0 +1,27 @@
+"""ros_env: the shared-memory leftovers of dead DDS processes are removed, live ones kept."""
+import fcntl
+
+from motion_ctrl import ros_env
+
+
+def test_clean_zombie_shm_removes_only_what_dead_processes_left(tmp_path):
+    def touch(*names):
+        for n in names:
+            (tmp_path / n).write_bytes(b'')
+    dead_segment = ('fastdds_0123456789abcdef', 'fastdds_0123456789abcdef_el')
+    dead_port = ('fastdds_port7411', 'fastdds_port7411_el', 'sem.fastdds_port7411_mutex')
+    live_segment = ('fastdds_fedcba9876543210', 'fastdds_fedcba9876543210_el')
+    live_port = ('fastdds_port7413', 'fastdds_port7413_sl', 'sem.fastdds_port7413_mutex')
+    others = ('lttng-ust-wait-6', 'fastdds_port7415')          # not ours / no lock file
+    touch(*dead_segment, *dead_port, *live_segment, *live_port, *others)
+    # A live owner holds its lock file (here: this process, on another open file description).
+    held = [open(tmp_path / name, 'ab') for name in (live_segment[1], live_port[1])]
+    for f in held:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    try:
+        assert ros_env.clean_zombie_shm(str(tmp_path)) == 5
+    finally:
+        for f in held:
+            f.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(live_segment + live_port + others)
+    assert ros_env.clean_zombie_shm(str(tmp_path / 'missing')) == 0
