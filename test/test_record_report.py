@@ -370,11 +370,15 @@ def test_report_png_of_a_recording(recording, tmp_path):
     print('\n' + report.format_summary(summary) + f'\nPNG: {png}')
     assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and png.stat().st_size > 50_000
     assert summary['x'], 'no move found in the recording'
-    first = summary['x'][0]
-    if not first.faults:         # a faulted move ends where the loop opened
-        # The first move in the bag is one of those commanded (the bag may begin during the
-        # first, while the recorder's status subscription is still being matched).
-        assert any(first.target == pytest.approx(t, abs=1e-9) for t, _ in recording['moves'])
+    # Every move the report found is one of those commanded. Not those of the first half
+    # second: the bag may begin during a move, while the status subscription is still being
+    # matched and the transient-local history of past words arrives (on a starved machine
+    # spread over several ticks, which the report cannot tell from live changes). Nor a
+    # faulted move: it ends where the loop opened.
+    later = [m for m in summary['x'] if m.start > 0.5 and not m.faults]
+    assert later, report.format_summary(summary)
+    for m in later:
+        assert any(m.target == pytest.approx(t, abs=1e-9) for t, _ in recording['moves']), m
     for m in summary['x']:
         if m.settle_time is not None and not m.faults:
             assert m.move_time is not None and 0 < m.move_time <= m.settle_time < 5.0
