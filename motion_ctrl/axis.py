@@ -589,7 +589,7 @@ class Axis:
         # new, and a frozen sample must not make a move look settled.
         bits = self.settling.step(sample_dt, position, velocity, p.done,
                                   actual_pos + offset, actual_vel)
-        if self.target is not None and (self._sampled_fb or self.sampled.phase != _S_IDLE):
+        if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
         return out

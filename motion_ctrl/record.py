@@ -20,8 +20,9 @@ message also carries its header.stamp (the servo tick that produced it); `motion
 plots against header stamps and uses the bag time only for the header-less status words.
 
 QoS: the servo streams are subscribed reliable, keep-last 1000 (the publishers are reliable with
-the same one second of history: a recorder that falls behind for up to a second loses nothing); status
-words reliable + transient local (msg_defs.STATUS_QOS: the current word is recorded at start).
+the same one second of history: a recorder that falls behind for up to a second loses nothing);
+status words reliable + transient local (msg_defs.STATUS_QOS: the current word is recorded at
+start).
 Other topics get reliable/volatile unless every publisher offers best effort / transient local.
 The publishers' offered QoS go into the metadata, as ros2 bag does.
 

@@ -162,12 +162,8 @@ class Checker:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
         from diagnostic_msgs.msg import DiagnosticArray
-        try:
-            from rclpy.experimental import EventsExecutor
-            self.executor = EventsExecutor()
-        except ImportError:
-            from rclpy.executors import SingleThreadedExecutor
-            self.executor = SingleThreadedExecutor()
+        from motion_ctrl import ros_env
+        self.executor = ros_env.executor()
         self.node = Node('record_checker')
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         self.stamps = {t: [] for t in SERVO_TOPICS}
