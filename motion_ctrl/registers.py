@@ -80,6 +80,37 @@ class Register:
             return None
         raise AssertionError(self.type)
 
+    def as_declared(self, value):
+        """`value` as this register's type when it is a spelling that ROS tooling delivers with
+        another type, else `value` unchanged (and then refused by type as usual). One rule for
+        every register, by its declared type:
+
+        * an empty array of any element type for an array register: YAML `[]` has no element
+          type (rclpy types it as a bool array);
+        * for a double, text spelled as a float; for a double array, items or a flow-list text
+          spelled as floats: rclpy's YAML file loader (`ros2 param load`) reads `1.0e-06` back
+          as the string '1e-06', so a dumped value returns as text.
+
+        Integer spellings stay refused for doubles (`2` is not `2.0`), as ROS types are strict.
+        """
+        if self.type in ('double_array', 'string_array') and _is_array(value) and not value:
+            return []
+        if self.type == 'double' and isinstance(value, str):
+            number = _float_text(value)
+            return value if number is None else number
+        if self.type == 'double_array' and (isinstance(value, str) or _is_array(value)):
+            items = value
+            if isinstance(value, str):
+                text = value.strip()
+                if not (text.startswith('[') and text.endswith(']')):
+                    return value
+                items = text[1:-1].split(',') if text[1:-1].strip() else []
+            if not all(isinstance(v, str) for v in items):
+                return value
+            numbers = [_float_text(v) for v in items]
+            return value if None in numbers else numbers
+        return value
+
     def _check_number(self, v) -> str | None:
         n = self.name
         if not math.isfinite(v):
@@ -89,6 +120,21 @@ class Register:
             return f'{n}: {v:g} {self.unit} is out of range, must be {op} {self.min:g}'
         if self.max is not None and v > self.max:
             return f'{n}: {v:g} {self.unit} is out of range, must be <= {self.max:g}'
+        return None
+
+
+def _is_array(value) -> bool:
+    return not isinstance(value, (str, bytes)) and hasattr(value, '__len__')
+
+
+def _float_text(text: str) -> float | None:
+    """The float that `text` spells with a '.' or an exponent ('1e-06', '2.5'), else None."""
+    text = text.strip()
+    if not any(c in text for c in '.eE'):
+        return None
+    try:
+        return float(text)
+    except ValueError:
         return None
 
 
@@ -232,7 +278,8 @@ def consistency(v: dict) -> list[str]:
                        f'({v["soft_limit_min"]:g} >= {v["soft_limit_max"]:g})')
     for table in ('backlash_table', 'leadscrew_table'):
         if len(v[table]) and not v[f'{table}_spacing'] > 0:
-            reasons.append(f'{table}_spacing must be > 0 when {table} is set')
+            reasons.append(f'{table}_spacing must be > 0 while {table} is set (clear the '
+                           f'table with [] before or with its spacing)')
     w, f = v['following_error_warning'], v['following_error_fatal']
     if w > 0 and f > 0 and w > f:
         reasons.append(f'following_error_warning must be <= following_error_fatal ({w:g} > {f:g})')

@@ -94,10 +94,56 @@ class RegisterNode(Node):
     """
 
     def set_parameters_atomically(self, parameter_list):
-        # The parameter services (`ros2 param set`, set_parameters, set_parameters_atomically)
-        # all land here: name the parameter in rclpy's wrong-type refusal.
-        return name_type_refusal(self, parameter_list,
-                                 super().set_parameters_atomically(parameter_list))
+        """The parameter services (`ros2 param set`, `ros2 param load`, set_parameters,
+        set_parameters_atomically) all land here, one parameter at a time for set_parameters.
+        Before rclpy's own checks: an unknown name is refused naming it (rclpy's text,
+        "Invalid access to undeclared parameter(s): []", loses the names); values are typed as
+        their registers are declared (`Register.as_declared`: YAML `[]`, floats read back as
+        text); a read-only parameter set to the value it has is accepted unchanged, so a
+        `ros2 param dump` loads back without a refusal. After: rclpy's wrong-type refusal
+        names the parameter."""
+        unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
+        if unknown:
+            return SetParametersResult(successful=False, reason=self.unknown_reason(unknown))
+        params = [self.as_declared(p) for p in parameter_list]
+        kept = [p for p in params if not self.unchanged_read_only(p)]
+        if not kept:
+            return SetParametersResult(
+                successful=True, reason=', '.join(p.name for p in params)
+                + ': read-only, value unchanged')
+        return name_type_refusal(self, kept, super().set_parameters_atomically(kept))
+
+    def register(self, name):
+        """(axis, Register) of a parameter name: (None, row) for a node-wide one, (None, None)
+        for one that is not a register (use_sim_time, ...)."""
+        reg = self.globals_table.get(name)
+        axis, row = self.split(name)
+        if reg is None and axis is not None:
+            return axis, self.axis_table[row]
+        return None, reg
+
+    def as_declared(self, p: Parameter) -> Parameter:
+        """`p` with its value typed as its register is declared, where the register table's one
+        rule (`Register.as_declared`) allows; otherwise `p` as it came."""
+        _, reg = self.register(p.name)
+        if reg is None or p.type_ == Parameter.Type.NOT_SET:
+            return p
+        want = _TYPES[reg.type][1]
+        if p.type_ == want:
+            return p
+        value = reg.as_declared(plain(p.value))
+        return Parameter(p.name, want, value) if want.check(value) else p
+
+    def unchanged_read_only(self, p: Parameter) -> bool:
+        if not self.describe_parameter(p.name).read_only:
+            return False
+        now = self.get_parameter(p.name)
+        return p.type_ == now.type_ and plain(p.value) == plain(now.value)
+
+    def unknown_reason(self, names) -> str:
+        """The one refusal of a parameter this node does not have (start-up and set alike)."""
+        return (f'{", ".join(names)}: no such parameter on {self.get_name()} '
+                f'(axes {self.axis_names})')
 
     def refuse_unknown_overrides(self) -> None:
         """A start-up value (params file, `-p`) for a parameter the node does not have is a typo
@@ -106,8 +152,7 @@ class RegisterNode(Node):
         # rclpy keeps the start-up values in Node._parameter_overrides (no public accessor).
         unknown = sorted(set(self._parameter_overrides) - set(self._parameters))
         if unknown:
-            raise ValueError(f'{", ".join(unknown)}: no such parameter on {self.get_name()} '
-                             f'(axes {self.axis_names})')
+            raise ValueError(self.unknown_reason(unknown))
 
     def split(self, name):
         """'x.kp' -> ('x', 'kp') for a register of a known axis, else (None, None)."""
@@ -127,10 +172,7 @@ class RegisterNode(Node):
 
     def validate(self, params) -> SetParametersResult:
         for p in params:
-            reg = self.globals_table.get(p.name)
-            axis, name = self.split(p.name)
-            if reg is None and axis is not None:
-                reg = self.axis_table[name]
+            axis, reg = self.register(p.name)
             if reg is None:
                 continue            # not ours (use_sim_time, ...): rclpy's own rules apply
             reason = reg.check(plain(p.value))

@@ -75,3 +75,27 @@ def test_cross_register_rules():
     assert any('leadscrew_table_spacing' in r for r in R.consistency(bad))
     bad = v | dict(notch_n1=0.0, notch_n2=0.0, notch_d1=0.0, notch_d2=1.5)   # unstable poles
     assert any('notch' in r for r in R.consistency(bad))
+
+
+@pytest.mark.parametrize('name, value, typed', [
+    ('leadscrew_table', [], []),                       # YAML [] arrives as a bool array
+    ('backlash_table', ['1e-06', '-2.5e-06'], [1e-06, -2.5e-06]),   # rclpy's file loader
+    ('backlash_table', '[0.001, 1e-06]', [0.001, 1e-06]),           # ... mixed: one text
+    ('backlash_table', '[]', []),
+    ('kp', '2e-05', 2e-05),
+    ('kp', '20000.0', 20000.0),
+])
+def test_values_typed_as_declared(name, value, typed):
+    """One rule by declared type: the spellings `ros2 param load` / `set` deliver with another
+    type become the register's type (then checked as any value)."""
+    assert R.CONTROLLER_AXIS[name].as_declared(value) == typed
+
+
+@pytest.mark.parametrize('name, value', [
+    ('kp', '2'), ('kp', 'fast'), ('kp', 2), ('backlash_table', ['1', '2']),
+    ('backlash_table', [1, 2]), ('backlash_table', '[0.001, 1]'), ('backlash_table', 'x'),
+    ('mode', []), ('correction_max_moves', '2.0'),
+])
+def test_other_types_are_left_to_be_refused(name, value):
+    """Integer spellings stay refused for doubles (2 is not 2.0); nothing else is guessed."""
+    assert R.CONTROLLER_AXIS[name].as_declared(value) == value
