@@ -278,8 +278,9 @@ def consistency(v: dict) -> list[str]:
                        f'({v["soft_limit_min"]:g} >= {v["soft_limit_max"]:g})')
     for table in ('backlash_table', 'leadscrew_table'):
         if len(v[table]) and not v[f'{table}_spacing'] > 0:
-            reasons.append(f'{table}_spacing must be > 0 while {table} is set (clear the '
-                           f'table with [] before or with its spacing)')
+            reasons.append(f'{table}_spacing must be > 0 while {table} is set (set the '
+                           'spacing before the table; clear the table with [] before or with '
+                           'the spacing)')
     w, f = v['following_error_warning'], v['following_error_fatal']
     if w > 0 and f > 0 and w > f:
         reasons.append(f'following_error_warning must be <= following_error_fatal ({w:g} > {f:g})')
