@@ -255,6 +255,9 @@ class RepairResult:
                  f'topics over {span:.1f} s']
         if self.complete:
             lines.append(f'{prog}: the MCAP file was complete; metadata.yaml rewritten')
+        elif self.kept_bytes == self.size:
+            lines.append(f'{prog}: the MCAP file ends after a complete record ({self.size} '
+                         f'bytes, no summary): every message kept')
         else:
             lines.append(f'{prog}: the MCAP file stops at byte {self.kept_bytes} of {self.size} '
                          f'({self.stopped}); every complete message before it kept'
@@ -267,7 +270,15 @@ class RepairResult:
 
 
 def _rihs01(msgtype: str, msgdef: str) -> str:
+    """The type hash for the metadata (the MCAP file does not hold it)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    kilted = get_typestore(Stores.ROS2_KILTED)
+    try:
+        if msgtype in kilted.types and \
+                kilted.generate_msgdef(msgtype, ros_version=2)[0] == msgdef:
+            return kilted.hash_rihs01(msgtype)     # what the recorder wrote: no parsing
+    except Exception:
+        pass
     try:
         ts = get_typestore(Stores.EMPTY)
         ts.register(get_types_from_msg(msgdef, msgtype))

@@ -158,6 +158,7 @@ class Recorder:
         self._timer = None
         self._flush_timer = None
         self.flushes = 0                      # chunks written by the periodic flush
+        self._flush_due = 0.0                 # time.monotonic() of the next flush
         self._thread = None
         self._stop = threading.Event()
         self.started = None                   # time.monotonic() at open
@@ -203,9 +204,13 @@ class Recorder:
                     self.pending.append(full)
             self._scan()
             self._timer = node.create_timer(RESCAN_PERIOD, self._scan)
-            # Same (default, mutually exclusive) callback group as the subscriptions: the
-            # flush never runs inside a write, whatever the executor.
-            self._flush_timer = node.create_timer(bag_repair.FLUSH_PERIOD, self.flush)
+            # The flush runs from the message callbacks when due (also while the executor
+            # works off a backlog, when a timer event would wait behind the messages) and from
+            # a timer (when messages stop). Same (default, mutually exclusive) callback group
+            # as the subscriptions: it never runs inside a write, whatever the executor.
+            self._flush_due = time.monotonic() + bag_repair.FLUSH_PERIOD
+            self._flush_timer = node.create_timer(bag_repair.FLUSH_PERIOD / 5,
+                                                  self._flush_if_due)
             self.started = time.monotonic()
         except BaseException:
             self.close()
@@ -214,8 +219,13 @@ class Recorder:
 
     def flush(self) -> None:
         """Write the pending chunk and flush the file (a SIGKILL loses only what came after)."""
+        self._flush_due = time.monotonic() + bag_repair.FLUSH_PERIOD
         if self.writer is not None and bag_repair.flush(self.writer):
             self.flushes += 1
+
+    def _flush_if_due(self) -> None:
+        if time.monotonic() >= self._flush_due:
+            self.flush()
 
     def _is_status(self, name: str, types) -> bool:
         prefix = self.namespace.rstrip('/') + '/'
@@ -278,10 +288,13 @@ class Recorder:
         self.counts[topic] = 0
         self.types[topic] = type_name
         counts, write, now = self.counts, self.writer.write, self._now
+        monotonic, flush_if_due = time.monotonic, self._flush_if_due
 
         def on_message(data, topic=topic, conn=conn):
             write(conn, now(), data)
             counts[topic] += 1
+            if monotonic() >= self._flush_due:
+                flush_if_due()
         self._subs[topic] = self.node.create_subscription(cls, topic, on_message, qos, raw=True)
 
     # -- running ----------------------------------------------------------------------------
