@@ -28,10 +28,12 @@ inconsistent record, and rewrites the file through rosbags' Writer: a complete M
 indexes and summary, and the metadata.yaml (topics, types, offered QoS, counts, start and
 duration). The new file replaces the old one atomically (same directory, os.replace); what it
 leaves out is only the unreadable tail. Topics whose channel record was still in the unwritten
-chunk (no message flushed yet) are not in the repaired bag.
+chunk (no message flushed yet) are not in the repaired bag. The recorder holds an flock on its
+file (`lock`), which the kernel drops when it dies: `repair` refuses a file still being written.
 """
 from __future__ import annotations
 
+import fcntl
 import mmap
 import os
 import pathlib
@@ -62,6 +64,12 @@ def check_flushable(writer) -> None:
             and callable(getattr(getattr(storage, 'bio', None), 'flush', None))):
         raise RuntimeError('rosbags McapWriter lacks chunk/close_chunk/bio: the recorder '
                            'cannot flush periodically (rosbags version not the pinned one?)')
+
+
+def lock(writer) -> None:
+    """Take an exclusive flock on the MCAP file while recording: `repair` refuses a file a live
+    recorder is writing. The kernel drops the lock when the process dies, SIGKILL included."""
+    fcntl.flock(writer.storage.bio.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
 def flush(writer) -> bool:
@@ -325,6 +333,11 @@ def repair(bag_dir) -> RepairResult:
     conns, counts, types = {}, {}, {}
     start = end = None
     with open(src, 'rb') as f:
+        try:
+            fcntl.flock(f.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            raise RepairError(f'{src}: a recorder is still writing it (file locked); stop it '
+                              f'first') from None
         size = os.fstat(f.fileno()).st_size
         if size == 0:
             raise RepairError(f'{src}: empty file (the recorder wrote nothing)')

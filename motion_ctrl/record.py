@@ -177,6 +177,7 @@ class Recorder:
                                  storage_plugin=StoragePlugin.MCAP)
             self.writer.open()
             bag_repair.check_flushable(self.writer)
+            bag_repair.lock(self.writer)
         except (WriterError, OSError) as e:
             self.writer = None
             raise RecordError(f'cannot create bag {self.out_dir}: {e}') from None

@@ -209,6 +209,14 @@ def test_repair_edge_cases(killed, tmp_path, capsys):
         assert record.main(['--repair', str(path)]) == 2, name
         err = capsys.readouterr().err
         assert err.startswith('record: error:') and err.count('\n') == 1, (name, err)
+    # A file a live recorder holds (its flock) is refused.
+    live = tmp_path / 'live'
+    _, w = write_bag(live, n=10)
+    bag_repair.lock(w)
+    with pytest.raises(bag_repair.RepairError, match='still writing'):
+        bag_repair.repair(live)
+    w.abort()
+    assert bag_repair.repair(live).total == 0     # (10 messages never flushed)
     # The closed bag is untouched.
     assert len(read_all(cases['closed'])[0]) == 11
     # A complete MCAP whose metadata.yaml is lost (e.g. killed inside close()): all of it.
