@@ -110,7 +110,10 @@ def _string(buf, pos, end) -> tuple[str, int]:
     pos += 4
     if pos + n > end:
         raise _Stop('string past the record')
-    return bytes(buf[pos:pos + n]).decode('utf-8'), pos + n
+    try:
+        return bytes(buf[pos:pos + n]).decode('utf-8'), pos + n
+    except UnicodeDecodeError:
+        raise _Stop('a string that is not UTF-8') from None
 
 
 def _bytes(buf, pos, end, width='<I') -> tuple[bytes, int]:
@@ -182,7 +185,11 @@ def read_records(buf, scan: Scan):
             name, p = _string(buf, a + 2, b)
             encoding, p = _string(buf, p, b)
             data, p = _bytes(buf, p, b)
-            scan.schemas.setdefault(sid, (name, encoding, data.decode('utf-8')))
+            try:
+                text = data.decode('utf-8')
+            except UnicodeDecodeError:
+                raise _Stop('a schema that is not UTF-8') from None
+            scan.schemas.setdefault(sid, (name, encoding, text))
             return [('schema', sid)]
         if op == OP_CHANNEL:
             if b - a < 4:
