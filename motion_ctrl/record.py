@@ -3,6 +3,7 @@ without a ROS install.
 
     python -m motion_ctrl.record -o DIR [TOPIC ...] [--ros-args ...]
     ros2 run motion_ctrl record -o DIR
+    ros2 run motion_ctrl record --repair DIR      # the bag of a killed recorder
 
 Default topics: joint_states, reference_states, motor_states, command, encoders, plant_states and
 every ``<axis>/status`` (std_msgs/UInt32 topics ending in ``/status``, found in the ROS graph at
@@ -26,10 +27,24 @@ start).
 Other topics get reliable/volatile unless every publisher offers best effort / transient local.
 The publishers' offered QoS go into the metadata, as ros2 bag does.
 
-SIGINT and SIGTERM only raise a flag; the bag is closed in `finally` (a killed writer leaves an
-MCAP file without its summary and no metadata.yaml). "record: recording N topics" is printed
-once the topics are matched (or after --ready-timeout, naming those without a publisher yet);
-at exit the messages written per topic are printed.
+SIGINT and SIGTERM only raise a flag; the bag is closed in `finally`. "record: recording N
+topics" is printed once the topics are matched (or after --ready-timeout, naming those without
+a publisher yet); at exit the messages written per topic are printed.
+
+A recorder that is killed (SIGKILL, OOM killer, power to the PC cut by an e-stop chain) cannot
+close the bag: it leaves the MCAP file without its footer and summary and no metadata.yaml,
+which no `rosbags` reader opens (it needs both). Design (`motion_ctrl.bag_repair`, where the
+reasons are given at length): the recorder writes its pending chunk and flushes the file every
+0.5 s (FLUSH_PERIOD; rosbags alone writes a chunk only per MiB, ~1.5 s of the slide's
+streams), so a kill loses at most the last half second or so; and
+
+    record --repair DIR
+
+(as `ros2 bag reindex`) rebuilds a complete bag from what the file holds: every complete
+message, a complete MCAP with summary, and the metadata.yaml. A bag that is always readable
+without that step is not possible with `rosbags`' reader (it requires the MCAP footer at the
+end of a file that is still being appended to). `report` on a killed recorder's bag says to run
+the repair.
 
 Throughput (measured on the 2-core VM, slide at 1 kHz = 6 streams + status, ~6000 msg/s): one
 rclpy EventsExecutor, messages written straight from the callbacks (rosbags' MCAP writer costs
@@ -57,6 +72,8 @@ import signal
 import sys
 import threading
 import time
+
+from motion_ctrl import bag_repair
 
 # Topics recorded by default (relative names) and their types; plus every <axis>/status.
 SERVO_TOPICS = ('joint_states', 'reference_states', 'motor_states', 'command', 'encoders',
@@ -139,6 +156,9 @@ class Recorder:
         self._subs = {}
         self._conns = {}
         self._timer = None
+        self._flush_timer = None
+        self.flushes = 0                      # chunks written by the periodic flush
+        self._flush_due = 0.0                 # time.monotonic() of the next flush
         self._thread = None
         self._stop = threading.Event()
         self.started = None                   # time.monotonic() at open
@@ -156,6 +176,8 @@ class Recorder:
             self.writer = Writer(self.out_dir, version=Writer.VERSION_LATEST,
                                  storage_plugin=StoragePlugin.MCAP)
             self.writer.open()
+            bag_repair.check_flushable(self.writer)
+            bag_repair.lock(self.writer)
         except (WriterError, OSError) as e:
             self.writer = None
             raise RecordError(f'cannot create bag {self.out_dir}: {e}') from None
@@ -183,11 +205,28 @@ class Recorder:
                     self.pending.append(full)
             self._scan()
             self._timer = node.create_timer(RESCAN_PERIOD, self._scan)
+            # The flush runs from the message callbacks when due (also while the executor
+            # works off a backlog, when a timer event would wait behind the messages) and from
+            # a timer (when messages stop). Same (default, mutually exclusive) callback group
+            # as the subscriptions: it never runs inside a write, whatever the executor.
+            self._flush_due = time.monotonic() + bag_repair.FLUSH_PERIOD
+            self._flush_timer = node.create_timer(bag_repair.FLUSH_PERIOD / 5,
+                                                  self._flush_if_due)
             self.started = time.monotonic()
         except BaseException:
             self.close()
             raise
         return self
+
+    def flush(self) -> None:
+        """Write the pending chunk and flush the file (a SIGKILL loses only what came after)."""
+        self._flush_due = time.monotonic() + bag_repair.FLUSH_PERIOD
+        if self.writer is not None and bag_repair.flush(self.writer):
+            self.flushes += 1
+
+    def _flush_if_due(self) -> None:
+        if time.monotonic() >= self._flush_due:
+            self.flush()
 
     def _is_status(self, name: str, types) -> bool:
         prefix = self.namespace.rstrip('/') + '/'
@@ -250,10 +289,13 @@ class Recorder:
         self.counts[topic] = 0
         self.types[topic] = type_name
         counts, write, now = self.counts, self.writer.write, self._now
+        monotonic, flush_if_due = time.monotonic, self._flush_if_due
 
         def on_message(data, topic=topic, conn=conn):
             write(conn, now(), data)
             counts[topic] += 1
+            if monotonic() >= self._flush_due:
+                flush_if_due()
         self._subs[topic] = self.node.create_subscription(cls, topic, on_message, qos, raw=True)
 
     # -- running ----------------------------------------------------------------------------
@@ -349,8 +391,9 @@ class Recorder:
                 try:
                     for sub in self._subs.values():
                         node.destroy_subscription(sub)
-                    if self._timer is not None:
-                        node.destroy_timer(self._timer)
+                    for timer in (self._timer, self._flush_timer):
+                        if timer is not None:
+                            node.destroy_timer(timer)
                     if self._own_node:
                         node.destroy_node()
                 except Exception as e:          # context already shut down
@@ -420,7 +463,20 @@ def main(argv=None) -> int:
                     help=f'reader queue depth of the servo streams (default {DEFAULT_DEPTH})')
     ap.add_argument('--ready-timeout', type=float, default=5.0,
                     help='seconds to wait at start for the topics to be published (default 5)')
+    ap.add_argument('--repair', metavar='DIR', default=None,
+                    help='do not record: make a complete bag (MCAP summary, metadata.yaml) of '
+                         'what a killed recorder left in DIR')
     args = ap.parse_args(argv)
+    if args.repair is not None:
+        if args.topics or args.output or ros_args:
+            ap.error('--repair takes no topics, -o or --ros-args')
+        try:
+            result = bag_repair.repair(args.repair)
+        except (bag_repair.RepairError, OSError) as e:
+            print(f'record: error: {e}', file=sys.stderr)
+            return 2
+        print(result.summary(), flush=True)
+        return 0
 
     import rclpy
     from rclpy.signals import SignalHandlerOptions

@@ -40,7 +40,8 @@ API for scripts and the demo::
     summary = make_report('bag_dir', 'move.png')      # {axis: [MoveSummary, ...]}
     print(format_summary(summary))
 
-A bag that does not exist, is not a bag or lacks the topics is a one-line error, exit code 2.
+A bag that does not exist, is not a bag or lacks the topics is a one-line error, exit code 2;
+the bag of a killed recorder (an MCAP file, no metadata.yaml) names `record --repair DIR`.
 """
 from __future__ import annotations
 
@@ -280,10 +281,17 @@ def _find_topic(topics: dict, name: str, namespace: str | None):
 
 
 def _bag_dir(path: pathlib.Path) -> pathlib.Path:
+    from motion_ctrl.bag_repair import needs_repair
     if not path.exists():
         raise ReportError(f'{path}: no such bag (file or directory not found)')
+    if path.is_file() and path.suffix == '.mcap' and needs_repair(path.parent):
+        path = path.parent
     if path.is_file() and (path.parent / 'metadata.yaml').is_file():
         return path.parent            # the .mcap / .db3 inside a bag directory
+    if needs_repair(path):
+        raise ReportError(f'{path}: an MCAP file without metadata.yaml: the recorder was '
+                          f'killed before it closed the bag; `record --repair {path}` makes a '
+                          f'readable bag of it')
     if path.is_dir() and not (path / 'metadata.yaml').is_file():
         raise ReportError(f'{path}: not a rosbag2 bag (no metadata.yaml: was the recorder '
                           f'killed before it closed the bag?)')

@@ -414,6 +414,142 @@ def test_recorder_api_in_process(slide, tmp_path):
     assert all(counts[t] > 20 for t in SERVO_TOPICS), counts
 
 
+# -- 6. SIGKILL: all but the last second is in the bag, after `record --repair` (issue 11) --------
+def test_sigkill_then_repair_keeps_all_but_the_last_second(slide, tmp_path):
+    """The recorder SIGKILLed in the middle of a move leaves an MCAP file and no metadata.yaml:
+    `report` names the repair, `record --repair` makes a bag `rosbags` opens, and it holds every
+    servo message the independent checker received up to one second before the kill. While
+    recording, the file grew at least every second (the periodic flush; rosbags alone writes a
+    chunk per MiB, ~1.5 s of these streams)."""
+    import msg_defs as md
+    from rosbags.rosbag2 import Reader
+    bag = tmp_path / 'killed'
+    mcap_file = bag / 'killed.mcap'
+    growth = []                       # (monotonic, size) of the MCAP file while recording
+    sampling = threading.Event()
+
+    def sample():
+        while not sampling.is_set():
+            try:
+                size = mcap_file.stat().st_size
+            except FileNotFoundError:
+                size = 0
+            if not growth or size != growth[-1][1]:
+                growth.append((time.monotonic(), size))
+            time.sleep(0.01)
+
+    checker = Checker()
+    rec = sampler = None
+    try:
+        assert checker.wait_matched(15.0), 'checker saw no servo messages'
+        rec = RecorderProcess(['-o', str(bag)])
+        rec.wait_line('record: recording', 30.0)
+        sampler = threading.Thread(target=sample, daemon=True)
+        sampler.start()
+        moves, t0 = [], time.monotonic()
+        while time.monotonic() - t0 < 3.0:                 # (a starved slide times out)
+            moves.append(slide.move({'x': INCH if len(moves) % 2 == 0 else 0.0}, timeout=2.0))
+        # Kill in the middle of a move.
+        slide.pub_target.publish(md.joint_state(slide.get_clock().now().to_msg(), ['x'],
+                                                [2 * INCH]))
+        slide.spin_until(lambda: False, 0.3)
+        kill_ns, kill_mono = time.time_ns(), time.monotonic()
+        rec.proc.send_signal(signal.SIGKILL)
+        rec.proc.wait(10.0)
+        sampling.set()
+        sampler.join()
+        slide.spin_until(lambda: False, 0.3)       # the checker goes on past the kill
+    finally:
+        sampling.set()
+        if rec is not None:
+            rec.kill()
+        checker.stop()
+    assert rec.proc.returncode == -signal.SIGKILL
+
+    # What the kill left: unreadable, and report says what to do.
+    assert mcap_file.is_file() and not (bag / 'metadata.yaml').exists()
+    with pytest.raises(report.ReportError, match='record --repair'):
+        report.make_report(bag)
+
+    # The file grew every half second (from its first chunk to the kill): the recorder's
+    # flush. (rosbags alone: once per MiB, ~1.5 s at the slide's full rate.) What a starved
+    # machine does to the longest interval is checked below.
+    times = []
+    for t, size in growth:
+        if size > growth[0][1] and (not times or t - times[-1] > 0.05):
+            times.append(t)               # (a chunk and its index may land 10 ms apart)
+    times.append(kill_mono)
+    intervals = sorted(b - a for a, b in zip(times, times[1:]))
+    assert len(intervals) >= 4, growth
+    longest, median = intervals[-1], intervals[len(intervals) // 2]
+    assert median <= 0.75, f'the recording reached the file every {median:.2f} s: {growth}'
+
+    # The one command.
+    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.record', '--repair', str(bag)],
+                       cwd=str(REPO_ROOT), env=_env(), capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 0 and p.stdout.startswith('record: repaired'), p.stdout + p.stderr
+    with Reader(bag) as reader:                       # rosbags opens it
+        meta = {c.topic: c.msgcount for c in reader.connections}
+        assert reader.message_count == sum(meta.values())
+    counts, stamps, status = read_bag(bag)
+    assert counts == meta == read_mcap(bag)[0]
+    assert set(SERVO_TOPICS) | {'/x/status'} <= set(counts), sorted(counts)
+
+    last_second = kill_ns - 1_000_000_000
+    lost_window = {t: (kill_ns - stamps[t][-1]) * 1e-9 for t in SERVO_TOPICS}
+    for topic in SERVO_TOPICS:
+        s = stamps[topic]
+        assert len(set(s)) == len(s) and s == sorted(s), topic
+    # The controller's streams hold the same ticks up to the last second (one tick publishes
+    # all four); how many ticks the controller published is what the checker received (below).
+    js = stamps['/joint_states']
+    lo = js[0] + 500_000_000
+    window = [x for x in js if lo <= x <= last_second]
+    for topic in ('/reference_states', '/motor_states', '/command'):
+        assert [x for x in stamps[topic] if lo <= x <= last_second] == window, topic
+    span = (window[-1] - window[0]) * 1e-9
+    assert len(status['/x/status']) >= 1
+
+    # report reads the repaired bag.
+    assert 'x' in report.make_report(bag)
+
+    total = sum(counts.values())
+    detail = (f'SIGKILL after {(kill_ns - js[0]) * 1e-9:.2f} s of recording: each servo stream '
+              f'ends {min(lost_window.values()) * 1000:.0f}-'
+              f'{max(lost_window.values()) * 1000:.0f} ms before the kill; the file grew every '
+              f'{median * 1000:.0f} ms (median), longest {longest * 1000:.0f} ms')
+    # All but the last second: every stream reaches to within a second of the kill, the file
+    # never went a second without growing, and the bag holds everything the checker received
+    # up to then (from half a second after both listened, as in
+    # test_recording_at_servo_rate_is_complete).
+    problems = [f'{t} ends {lost_window[t]:.2f} s before the kill' for t in SERVO_TOPICS
+                if stamps[t][-1] < last_second]
+    if longest > 1.0:
+        problems.append(f'the file went {longest:.2f} s without growing')
+    seen = checker.stamps
+    checker_missed = 0
+    for topic in SERVO_TOPICS:
+        lo = max(stamps[topic][0], seen[topic][0]) + 500_000_000
+        in_bag = {x for x in stamps[topic] if lo <= x <= last_second}
+        in_checker = {x for x in seen[topic] if lo <= x <= last_second}
+        checker_missed += len(in_bag - in_checker)
+        if in_checker - in_bag:
+            problems.append(f'{topic}: {len(in_checker - in_bag)} messages the checker '
+                            f'received are not in the bag')
+    if problems:
+        load = os.getloadavg()[0]
+        if load > 1.5 * os.cpu_count() or checker_missed:
+            # The recorder (a process like any other) receives and writes late on a machine
+            # starved by other jobs; messages DDS still held at the kill are in no bag.
+            pytest.xfail(f'machine overloaded (load {load:.1f} on {os.cpu_count()} cores, the '
+                         f'checker missed {checker_missed}): {"; ".join(problems)}; {detail}')
+        pytest.fail(f'{"; ".join(problems)}; {detail}')
+    print(f'\n{detail}; repaired bag holds {total} messages, {len(window)} ticks in the '
+          f'{span:.2f} s checked (controller at {len(window) / span:.0f} Hz); moves {[round(m, 2) if m else m for m in moves]} s\n'
+          + p.stdout)
+
+
 # -- 3. the report agrees with the harness -------------------------------------------------------
 def write_harness_bag(trace, path, status_period=0.1):
     """The harness trace as the controller and plant would publish it: JointState on
