@@ -124,7 +124,7 @@ class SlidePlant:
         self.commanded = volts
         self.command_age = 0.0
 
-    def advance(self, dt: float) -> None:
+    def advance(self, dt: float, cycle: float | None = None) -> None:
         """One plant cycle of dt on the held command, through the amplifier's watchdog.
 
         The fieldbus / amplifier-fault rule of a servo drive (EtherCAT SyncManager watchdog,
@@ -132,10 +132,11 @@ class SlidePlant:
         go on driving the last value. Once `command_timeout` of plant time has passed without a
         command, the output is 0 V and the windings are shorted through the brake resistor
         (dynamic braking, as servo drives do when they disable) until a command comes again.
-        Checked once per cycle, like a drive per fieldbus cycle: a cycle that came late after
-        a command still drives it, so a plant held up by its machine does not cut the output
-        of a live controller whose commands wait in its queue. Counted in plant time, so a
-        lockstep run (a command every cycle) stays deterministic.
+        Checked once per cycle, like a drive per fieldbus cycle, and a cycle that came late
+        (longer than `cycle`, the nominal period, when given) counts as at most two: a plant
+        held up by its machine must not cut the output of a live controller whose commands
+        wait in its queue (the controller's feedback_timeout is counted the same way). Counted
+        in plant time, so a lockstep run (a command every cycle) stays deterministic.
         """
         # (1 ns slack: five 1 ms cycles add up to 5 ms, not to a hair less)
         self.tripped = self.command_age >= self.params['command_timeout'] - 1e-9
@@ -143,7 +144,7 @@ class SlidePlant:
             self.step(0.0, dt, braking=True)
         else:
             self.step(self.commanded, dt)
-        self.command_age += dt
+        self.command_age += dt if cycle is None else min(dt, 2 * cycle)
 
     # -- integration --------------------------------------------------------------------------
     def step(self, volts: float, dt: float, braking: bool = False) -> None:

@@ -120,6 +120,13 @@ def test_watchdog_drives_the_last_command_for_command_timeout_then_0_volts():
     p.command(0.7)                                 # commands again: it drives them at once
     p.advance(1e-3)
     assert not p.tripped and p.volts == 0.7
+    p.advance(0.05, cycle=1e-3)                    # a late cycle (the plant held up) counts 2
+    p.advance(1e-3, cycle=1e-3)
+    assert not p.tripped
+    p.advance(1e-3, cycle=1e-3)
+    assert not p.tripped
+    p.advance(1e-3, cycle=1e-3)
+    assert p.tripped
 
 
 def test_watchdog_stops_a_slide_at_max_velocity_within_5_mm():
