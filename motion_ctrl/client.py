@@ -10,6 +10,7 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
+from std_srvs.srv import SetBool, Trigger
 
 import msg_defs as md
 from motion_ctrl import ros_env
@@ -20,7 +21,7 @@ FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
 
 
 class SlideClient(Node):
-    def __init__(self, axes=('x',), name='slide_client', context=None):
+    def __init__(self, axes=('x',), name='slide_client', context=None, services=False):
         super().__init__(name, context=context)
         # (The client shares two cores with two 1 kHz nodes: the lighter executor leaves them
         # more room.)
@@ -36,6 +37,12 @@ class SlideClient(Node):
         for a in self.axes:
             self.create_subscription(UInt32, md.status_topic(a),
                                      lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
+        # The axis services' clients, made now when asked for: a client (a new reader) joining
+        # later holds the controller up while Fast DDS health-checks its port (README, Notes).
+        self.axis_services = {
+            (a, name): self.create_client(SetBool if kind == 'SetBool' else Trigger,
+                                          md.service_name(a, name))
+            for a in (self.axes if services else ()) for name, kind in md.SERVICES.items()}
 
     def _on_truth(self, msg):
         self.truth = dict(zip(msg.name, msg.position))
@@ -72,6 +79,15 @@ class SlideClient(Node):
                 futures.append(send())
             self.executor_.spin_once(timeout_sec=0.01)
         return next(f for f in futures if f.done()).result()
+
+    def call(self, service: str, data: bool | None = None, timeout: float = 5.0, axis=None):
+        """Call `<axis>/<service>` (the first axis by default; SetBool with `data`, else
+        Trigger) and return the response (services=True in the constructor)."""
+        client = self.axis_services[(axis or self.axes[0], service)]
+        if not self.spin_until(client.service_is_ready, timeout):
+            raise TimeoutError(f'{service} not available')
+        request = SetBool.Request(data=data) if data is not None else Trigger.Request()
+        return self.answer(lambda: client.call_async(request), timeout)
 
     def wait_ready(self, timeout: float = 15.0) -> bool:
         """Discovery done and the loop running: subscribers matched, status and truth seen."""

@@ -23,6 +23,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.duration import Duration
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
 from std_srvs.srv import SetBool, Trigger
@@ -41,6 +42,8 @@ MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule b
 # s of encoder samples before the loop closes at start-up (real time): while DDS discovery
 # settles, a stream can pause for longer than feedback_timeout right after its first sample.
 STREAM_SETTLE = 0.5
+# s: the longest a stopping controller waits for its last command (0 V) to be acknowledged
+SHUTDOWN_ACK_WAIT = 0.2
 
 
 class ControllerNode(ros_params.RegisterNode):
@@ -273,6 +276,22 @@ class ControllerNode(ros_params.RegisterNode):
                 self.last_status_time[a] = now
         self.stats.work(time.perf_counter() - t_start)
 
+    def shutdown_outputs(self) -> None:
+        """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V
+        commanded on every axis, as a PMAC or Galil kills its motors (amplifier disabled, output
+        0) when it stops, instead of leaving the amplifier on its last command until the
+        amplifier's own watchdog trips. The command stream is reliable: waiting (bounded) for the
+        readers' acknowledgement keeps the participant alive until the message has left; a
+        best-effort reader (the plant) got it in the synchronous publish already."""
+        stamp = self.get_clock().now().to_msg()
+        for axis in self.axes.values():
+            axis.enable(False)
+        self.pub_command.publish(stamp, self.axis_names, effort=[0.0] * len(self.axis_names))
+        for a, axis in self.axes.items():
+            self.pub_status[a].publish(UInt32(data=int(axis.status)))
+        self.pub_command.publisher.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_WAIT))
+        self.get_logger().info(f'stopped: loops opened, 0 V commanded on {self.axis_names}')
+
     def _publish_diagnostics(self) -> None:
         extra = {} if self.sync is None else {'timer_phase_shifts': self.sync.shifts}
         self.pub_diag.publish(diagnostics_message(
@@ -284,7 +303,8 @@ def spin(node) -> None:
     """Spin on ros_env.executor() until SIGINT or SIGTERM.
 
     The signals only raise a flag: the context is shut down after the last callback returned,
-    so no callback publishes on a dead context.
+    so no callback publishes on a dead context. Before that a node's `shutdown_outputs()`, if
+    it has one, leaves its outputs safe (the controller: loops open, 0 V).
     """
     executor = ros_env.executor()
     executor.add_node(node)
@@ -295,6 +315,12 @@ def spin(node) -> None:
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
     finally:
+        safe = getattr(node, 'shutdown_outputs', None)
+        if safe is not None and rclpy.ok():
+            try:
+                safe()
+            except Exception as e:          # (still shut down; say why the outputs may not be)
+                print(f'{node.get_name()}: shutdown_outputs failed: {e!r}', file=sys.stderr)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()

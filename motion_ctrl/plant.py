@@ -5,6 +5,8 @@ through a backlash gap with finite contact stiffness. A rotary encoder is on the
 encoder on the slide. Modelled:
 
 * amplifier: input clipped at ±amplifier_limit V, current = amplifier_gain·V, torque = Kt·i;
+  a command watchdog (`command` / `advance`) puts the output to 0 V and closes the dynamic
+  brake when no command came for `command_timeout`;
 * motor side: rotor + screw inertia, viscous + Coulomb friction with stiction (Karnopp);
 * lead screw: lead, and a pitch error e(x) (cumulative slope + periodic term) that displaces the
   nut from the ideal screw position, so a leadscrew table has something real to correct;
@@ -61,6 +63,10 @@ class SlidePlant:
         self.x_l = self.v_l = 0.0     # slide [m, m/s]
         self.time = 0.0
         self.volts = 0.0              # last applied (clipped) amplifier input
+        # The amplifier's command watchdog: no command yet counts as one that timed out.
+        self.commanded = 0.0          # last command received [V]
+        self.command_age = math.inf   # plant time since it came [s]
+        self.tripped = True           # output held at 0 V by the watchdog in the last cycle
 
     def configure(self, **changes):
         """Change parameters (validated together; nothing changes if one is refused)."""
@@ -83,6 +89,7 @@ class SlidePlant:
         self._force_per_volt = p['amplifier_gain'] * p['torque_constant'] * self._rad_per_m
         # Rotary friction reflected to the linear coordinate.
         self._m_visc = p['motor_viscous'] * self._rad_per_m ** 2
+        self._m_visc_braked = self._m_visc + p['dynamic_brake'] * self._rad_per_m ** 2
         self._m_coul = p['motor_coulomb'] * self._rad_per_m
         self._m_stic = p['motor_stiction'] * self._rad_per_m
         self.motor_counts_per_m = p['motor_counts_per_rev'] / p['lead']
@@ -111,8 +118,38 @@ class SlidePlant:
         return (math.floor(self.x_m * self.motor_counts_per_m + 1e-9),
                 math.floor(self.x_l * self.load_counts_per_m + 1e-9))
 
+    # -- the amplifier's command watchdog ------------------------------------------------------
+    def command(self, volts: float) -> None:
+        """A command arrived: held (zero-order) until the next one, and the watchdog re-armed."""
+        self.commanded = volts
+        self.command_age = 0.0
+
+    def advance(self, dt: float, cycle: float | None = None) -> None:
+        """One plant cycle of dt on the held command, through the amplifier's watchdog.
+
+        The fieldbus / amplifier-fault rule of a servo drive (EtherCAT SyncManager watchdog,
+        PMAC amplifier fault on a lost command): a drive whose command stream stopped must not
+        go on driving the last value. Once `command_timeout` of plant time has passed without a
+        command, the output is 0 V and the windings are shorted through the brake resistor
+        (dynamic braking, as servo drives do when they disable) until a command comes again.
+        Checked once per cycle, like a drive per fieldbus cycle, and a cycle that came late
+        (longer than `cycle`, the nominal period, when given) counts as at most two: a plant
+        held up by its machine must not cut the output of a live controller whose commands
+        wait in its queue (the controller's feedback_timeout is counted the same way). Counted
+        in plant time, so a lockstep run (a command every cycle) stays deterministic.
+        """
+        # (1 ns slack: five 1 ms cycles add up to 5 ms, not to a hair less)
+        self.tripped = self.command_age >= self.params['command_timeout'] - 1e-9
+        if self.tripped:
+            self.step(0.0, dt, braking=True)
+        else:
+            self.step(self.commanded, dt)
+        self.command_age += dt if cycle is None else min(dt, 2 * cycle)
+
     # -- integration --------------------------------------------------------------------------
-    def step(self, volts: float, dt: float) -> None:
+    def step(self, volts: float, dt: float, braking: bool = False) -> None:
+        """Advance the physics by dt with `volts` on the amplifier input (no watchdog);
+        `braking`: the dynamic brake is closed."""
         if not math.isfinite(volts):
             volts = 0.0               # a broken command never reaches the motor
         p = self.params
@@ -125,6 +162,7 @@ class SlidePlant:
         k, c, b = p['screw_stiffness'], p['screw_damping'], p['backlash']
         mm, ml = self.motor_mass, p['slide_mass']
         brake = p['brake'] == 1
+        m_visc = self._m_visc_braked if braking else self._m_visc
         # The pitch error changes by nanometres within one step: evaluated once per step.
         pitch = self.pitch_error(self.x_m)
         for _ in range(n):
@@ -143,7 +181,7 @@ class SlidePlant:
                 fw = -_WALL_STIFFNESS * (x_l - p['travel_max']) - _WALL_DAMPING * v_l
             elif x_l < p['travel_min']:
                 fw = -_WALL_STIFFNESS * (x_l - p['travel_min']) - _WALL_DAMPING * v_l
-            v_m = _friction_step(v_m, drive - fc, mm, self._m_visc, self._m_coul,
+            v_m = _friction_step(v_m, drive - fc, mm, m_visc, self._m_coul,
                                  self._m_stic, h)
             if brake:
                 v_l = 0.0

@@ -2,8 +2,11 @@
 
 Subscribes `command` (amplifier volts per axis), integrates `motion_ctrl.plant.SlidePlant` over
 the real elapsed time on every tick of its own timer, and publishes `encoders` (raw counts) and
-`plant_states` (ground truth). Like an amplifier behind a PMAC watchdog, a command older than
-COMMAND_TIMEOUT is treated as 0 V.
+`plant_states` (ground truth). Each axis' amplifier has a command watchdog
+(`SlidePlant.advance`): after `<axis>.command_timeout` of plant time without a command its output
+is 0 V and its dynamic brake closes; `<axis>/amplifier_fault` (std_msgs/Bool, latched) says so,
+and the log says it once on the trip and once when commands come again. `amplifier_states` carries
+the output each amplifier applied (effort [V]).
 
 Lockstep (`lockstep: 1`): the plant is the clock. It publishes `/clock`, `encoders` and
 `plant_states` at sim time t, waits for the controller's command stamped t (the controller,
@@ -22,6 +25,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
 
 import msg_defs as md
 from motion_ctrl import ros_params
@@ -29,7 +33,7 @@ from motion_ctrl.controller_node import run
 from motion_ctrl.plant import SlidePlant
 from motion_ctrl.registers import PLANT_AXIS, PLANT_GLOBALS, PLANT_PARAMETERS, plant_consistency
 
-COMMAND_TIMEOUT = 0.1    # s
+FAULT_PERIOD = 0.1       # s: amplifier_fault is re-published at least at 10 Hz (as status words)
 LOCKSTEP_RESEND = 0.05   # s of wall time without progress before the sample is sent again
 
 
@@ -48,14 +52,18 @@ class PlantNode(ros_params.RegisterNode):
         self.refuse_unknown_overrides()
         for a in self.axis_names:
             self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values[a])
-        self.volts = {a: 0.0 for a in self.axis_names}
-        self.command_time = None
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
         self.pub_enc = md.JointStateStream(
             self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS))
         self.pub_truth = md.JointStateStream(
             self.create_publisher(JointState, md.PLANT_STATES, md.SERVO_QOS))
+        self.pub_amp = md.JointStateStream(
+            self.create_publisher(JointState, md.AMPLIFIER_STATES, md.SERVO_QOS))
+        self.pub_fault = {a: self.create_publisher(Bool, md.amplifier_fault_topic(a),
+                                                   md.STATUS_QOS) for a in self.axis_names}
+        self.fault = {a: None for a in self.axis_names}      # last published, and when
+        self.fault_time = {a: -1.0 for a in self.axis_names}
         self.create_subscription(JointState, md.COMMAND, self._on_command, md.SERVO_READ_QOS)
         self.last = None
         if self.lockstep:
@@ -90,14 +98,15 @@ class PlantNode(ros_params.RegisterNode):
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if stamp_ns != self.sim_ns:
                 return                      # an answer to an older sample
-            self.volts.update(volts)
-            for a, plant in self.plants.items():
-                plant.step(self.volts[a], self.period_ns * 1e-9)
+            for a, v in volts.items():
+                self.plants[a].command(v)
+            for plant in self.plants.values():
+                plant.advance(self.period_ns * 1e-9)
             self.sim_ns += self.period_ns
             self._lockstep_publish()
             return
-        self.volts.update(volts)
-        self.command_time = self.get_clock().now().nanoseconds * 1e-9
+        for a, v in volts.items():
+            self.plants[a].command(v)       # held, and the watchdog re-armed
 
     def _lockstep_resend(self) -> None:
         if self.resent_at_ns == self.sim_ns:      # no progress since the last check
@@ -119,16 +128,16 @@ class PlantNode(ros_params.RegisterNode):
             self.get_logger().warning(f'plant held up {dt * 1e3:.0f} ms (integrated as one '
                                       f'step of at most 100 ms)', throttle_duration_sec=1.0)
         dt = min(dt, 0.1)             # a stalled process does not integrate a huge step
-        stale = self.command_time is None or now - self.command_time > COMMAND_TIMEOUT
-        for a, plant in self.plants.items():
-            plant.step(0.0 if stale else self.volts[a], dt)
+        for plant in self.plants.values():
+            plant.advance(dt, self.period)
         self.publish(now_msg.to_msg())
 
     def publish(self, stamp, then=None) -> None:
         """encoders first (the controller's next tick waits on them), then `then()` and the
         ground truth."""
-        names, counts, tpos, tvel = [], [], [], []
+        names, counts, tpos, tvel, volts = [], [], [], [], []
         for a, plant in self.plants.items():
+            volts.append(plant.volts)
             m, l = plant.encoder_counts()
             names += [md.motor_joint(a), md.load_joint(a)]
             counts += [m, l]
@@ -138,6 +147,27 @@ class PlantNode(ros_params.RegisterNode):
         if then is not None:
             then()
         self.pub_truth.publish(stamp, names, tpos, tvel)
+        self.pub_amp.publish(stamp, self.axis_names, effort=volts)
+        self._report_faults(stamp.sec + stamp.nanosec * 1e-9)
+
+    def _report_faults(self, now: float) -> None:
+        """`<axis>/amplifier_fault` on every change and at least at 10 Hz; a log line on a
+        trip and on the recovery (not at start-up, before the first command)."""
+        for a, plant in self.plants.items():
+            tripped = plant.tripped
+            last = self.fault[a]
+            if tripped == last and now - self.fault_time[a] < FAULT_PERIOD:
+                continue
+            if last is not None and tripped != last:
+                timeout = plant.params['command_timeout']
+                if tripped:
+                    self.get_logger().warning(
+                        f'{a}: amplifier fault: no command for {timeout * 1e3:g} ms '
+                        f'(command_timeout): output 0 V, dynamic brake on')
+                else:
+                    self.get_logger().info(f'{a}: amplifier: commands arriving, output on')
+            self.pub_fault[a].publish(Bool(data=tripped))
+            self.fault[a], self.fault_time[a] = tripped, now
 
 
 def main(args=None):

@@ -333,6 +333,19 @@ PLANT_PARAMETERS = (
     _r('travel_max', 'double', 0.55, 'm', 'Slide end stop (positive).'),
     _r('brake', 'integer', 0, '', '1 clamps the slide (stall test), 0 releases it.',
        min=0, max=1),
+    _r('command_timeout', 'double', 0.01, 's', 'Amplifier command watchdog: with no '
+       '`command` for this long (plant time, checked every plant cycle) the output goes to 0 V '
+       'and the dynamic brake closes until commands come again; <axis>/amplifier_fault reports '
+       'it. 10 servo periods: a slide at max_velocity (0.1 m/s) runs 1 mm on the last command '
+       'and 1 mm on the dynamic brake, at rest in 31 ms (coasting free against friction alone '
+       'it would run 9.3 mm more, in 0.2 s); shorter trips on every controller stall of a '
+       'loaded machine.',
+       'fieldbus (EtherCAT SM) watchdog, PMAC amplifier fault', min=0.0, max=10.0,
+       min_exclusive=True),
+    _r('dynamic_brake', 'double', 0.002, 'N·m·s/rad', 'Braking torque per motor speed while '
+       'the watchdog holds the output at 0: the amplifier shorts the windings through its brake '
+       'resistor (Kt²/R, here R = 5 Ω); 0 lets the motor coast.',
+       'servo drive dynamic braking (DB stop)', min=0.0, max=0.1),
 )
 PLANT_GLOBALS = (
     _r('axes', 'string_array', ['x'], '', 'Names of the simulated axes.', read_only=True),

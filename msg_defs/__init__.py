@@ -8,7 +8,8 @@ exactly up to 2**53).
 from msg_defs.status import Status
 from msg_defs.topics import (
     COMMAND, ENCODERS, JOINT_STATES, MOTOR_STATES, PLANT_STATES, REFERENCE_STATES,
-    TARGET_POSITION, TARGET_VELOCITY, DIAGNOSTICS, CLOCK, status_topic, service_name,
+    AMPLIFIER_STATES, TARGET_POSITION, TARGET_VELOCITY, DIAGNOSTICS, CLOCK, status_topic,
+    amplifier_fault_topic, service_name,
     SERVICES, motor_joint, load_joint, split_joint,
 )
 from msg_defs.qos import SERVO_QOS, SERVO_READ_QOS, STATUS_QOS
@@ -17,8 +18,8 @@ from msg_defs.joint_state import (joint_state, read_joint_state, MalformedMessag
 
 __all__ = [
     'Status', 'COMMAND', 'ENCODERS', 'JOINT_STATES', 'MOTOR_STATES', 'PLANT_STATES',
-    'REFERENCE_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY', 'DIAGNOSTICS', 'CLOCK',
-    'status_topic', 'service_name', 'SERVICES', 'motor_joint', 'load_joint', 'split_joint',
+    'REFERENCE_STATES', 'AMPLIFIER_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY', 'DIAGNOSTICS',
+    'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint', 'load_joint', 'split_joint',
     'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream',
 ]

@@ -8,6 +8,7 @@ MOTOR_STATES = 'motor_states'          # controller ->: motor side in load units
 COMMAND = 'command'                    # controller -> plant: effort = amplifier command [V]
 ENCODERS = 'encoders'                  # plant -> controller: raw counts in position
 PLANT_STATES = 'plant_states'          # plant ->: ground truth [m, m/s]
+AMPLIFIER_STATES = 'amplifier_states'  # plant ->: effort = amplifier output applied [V]
 DIAGNOSTICS = '/diagnostics'           # diagnostic_msgs/DiagnosticArray (absolute by convention)
 CLOCK = '/clock'                       # rosgraph_msgs/Clock in lockstep simulation
 
@@ -25,6 +26,12 @@ SERVICES = {
 def status_topic(axis: str) -> str:
     """`<axis>/status`, std_msgs/UInt32 status word."""
     return f'{axis}/status'
+
+
+def amplifier_fault_topic(axis: str) -> str:
+    """`<axis>/amplifier_fault`, std_msgs/Bool from the plant: true while its command watchdog
+    holds the output at 0 V."""
+    return f'{axis}/amplifier_fault'
 
 
 def service_name(axis: str, service: str) -> str:

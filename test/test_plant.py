@@ -95,3 +95,73 @@ def test_bad_parameters_are_refused_and_change_nothing():
     with pytest.raises(ValueError, match='unknown'):
         p.configure(mass=1.0)
     assert p.params['slide_mass'] == 5.0
+
+
+# -- the amplifier's command watchdog (issue 11) ----------------------------------------------
+def cruise(p, volts=1.5, seconds=0.4, dt=1e-3):
+    """Drive with a command every cycle, as a live controller does."""
+    for _ in range(round(seconds / dt)):
+        p.command(volts)
+        p.advance(dt)
+
+
+def test_watchdog_drives_the_last_command_for_command_timeout_then_0_volts():
+    p = SlidePlant(command_timeout=0.005)
+    assert p.tripped                               # no command yet: output 0
+    cruise(p)
+    assert not p.tripped and p.volts == 1.5
+    ages = []
+    for _ in range(10):                            # the controller is gone
+        p.advance(1e-3)
+        ages.append(p.tripped)
+    # The last command drove 5 cycles (1 in cruise), then 0 V.
+    assert ages == [False] * 4 + [True] * 6
+    assert p.volts == 0.0
+    p.command(0.7)                                 # commands again: it drives them at once
+    p.advance(1e-3)
+    assert not p.tripped and p.volts == 0.7
+    p.advance(0.05, cycle=1e-3)                    # a late cycle (the plant held up) counts 2
+    p.advance(1e-3, cycle=1e-3)
+    assert not p.tripped
+    p.advance(1e-3, cycle=1e-3)
+    assert not p.tripped
+    p.advance(1e-3, cycle=1e-3)
+    assert p.tripped
+
+
+def test_watchdog_stops_a_slide_at_max_velocity_within_5_mm():
+    """The default timeout and dynamic brake: a slide moving at the default max_velocity
+    (0.1 m/s) when its commands stop travels <= 5 mm more and rests within 0.5 s; with the
+    dynamic brake off it coasts against friction alone for ~9 mm."""
+    from motion_ctrl.harness import Harness
+
+    def after_loss(**plant):
+        h = Harness(plant=plant)
+        h.axis.move_to(0.3)
+        h.run(0.5)
+        p = h.plant
+        assert p.v_l == pytest.approx(0.1, rel=0.02)     # cruising at max_velocity
+        p.command(h.trace.output[-1])        # the last command the axis sent
+        x0, rest = p.x_l, None
+        for i in range(1, 601):
+            p.advance(1e-3)                  # no more commands
+            if rest is None and p.tripped and abs(p.v_l) <= 1e-3:
+                rest = i * 1e-3
+        return p.x_l - x0, rest, p.v_l
+    travel, rest, v = after_loss()
+    assert travel <= 0.005 and rest <= 0.5 and v == 0.0
+    coast, _, _ = after_loss(dynamic_brake=0.0)
+    assert coast > 0.008
+    late, _, _ = after_loss(command_timeout=0.1)        # the old 100 ms hold
+    assert late > 0.005
+
+
+def test_commanded_cycles_are_the_plain_physics():
+    """A command every cycle (lockstep, a live controller) is exactly step(volts, dt)."""
+    a, b = SlidePlant(), SlidePlant()
+    for i in range(300):
+        v = 2.0 if i < 150 else -1.0
+        a.command(v)
+        a.advance(1e-3)
+        b.step(v, 1e-3)
+    assert (a.x_m, a.v_m, a.x_l, a.v_l) == (b.x_m, b.v_m, b.x_l, b.v_l)

@@ -26,7 +26,6 @@ from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rcl_interfaces.msg import ParameterType  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
-from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
@@ -57,7 +56,7 @@ class Probe(SlideClient):
     reference_states and /diagnostics, the axis services and a parameter client."""
 
     def __init__(self, axis='x'):
-        super().__init__(axes=(axis,), name='ros_test_probe')
+        super().__init__(axes=(axis,), name='ros_test_probe', services=True)
         self.axis = axis
         self.joint_log = deque(maxlen=30000)   # (stamp, position, velocity, effort)
         self.joint_count = 0
@@ -78,10 +77,6 @@ class Probe(SlideClient):
         self.pub_encoders = self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
         self.params = AsyncParameterClient(self, 'controller')
         self.plant_params = AsyncParameterClient(self, 'plant')
-        self.axis_services = {
-            name: self.create_client(SetBool if kind == 'SetBool' else Trigger,
-                                     md.service_name(axis, name))
-            for name, kind in md.SERVICES.items()}
 
     # -- subscriptions ---------------------------------------------------------------------------
     def _on_joint(self, msg):
@@ -183,12 +178,6 @@ class Probe(SlideClient):
         """Load (slide) position from joint_states."""
         self.spin_for_messages(1)
         return self.joint_log[-1][1]
-
-    def call(self, service: str, data: bool | None = None, timeout: float = 5.0):
-        client = self.axis_services[service]
-        assert self.spin_until(client.service_is_ready, timeout), f'{service} not available'
-        request = SetBool.Request(data=data) if data is not None else Trigger.Request()
-        return self.answer(lambda: client.call_async(request), timeout)
 
     # -- parameters ------------------------------------------------------------------------------
     def set_params(self, params: dict) -> list:

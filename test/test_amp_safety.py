@@ -1,0 +1,203 @@
+"""A controller that stops leaves the amplifier safe (issue 11): plant and controller as two
+processes over DDS with their DEFAULT parameters (feedback_timeout 20 ms, command_timeout 10 ms).
+
+The slide cruises at max_velocity when the controller is killed (SIGKILL: the plant's command
+watchdog must catch it) or stopped (SIGINT: the controller commands 0 V and disables itself).
+From `amplifier_states` and `plant_states` (ground truth): the amplifier output is 0 within the
+watchdog, the slide travels <= 5 mm more and is at rest (<= 1 mm/s) within 0.5 s. A new
+controller then takes the axis over: reset + enable and a 1-inch move land within a count.
+(With the old 100 ms hold, or no dynamic brake, the travel check fails: 10-36 mm.)
+"""
+from __future__ import annotations
+
+import signal
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.serialization import deserialize_message  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Bool  # noqa: E402
+
+import msg_defs as md  # noqa: E402
+from msg_defs.status import Status  # noqa: E402
+from motion_ctrl.client import FAULTS, SlideClient  # noqa: E402
+from motion_ctrl.processes import NodeProcess, params_dir, start_slide  # noqa: E402
+from motion_ctrl.registers import INCH, PLANT_AXIS  # noqa: E402
+
+try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
+    import pytest_timeout  # noqa: F401
+    pytestmark = pytest.mark.timeout(150)
+except ImportError:
+    pass
+
+COUNT = INCH / 10000
+COMMAND_TIMEOUT = PLANT_AXIS['command_timeout'].default
+MAX_VELOCITY = 0.1             # the controller's default max_velocity [m/s]
+LONG_MOVE = 0.3                # m: 3 s at max_velocity, time enough to kill it in the middle
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class Recorder(SlideClient):
+    """SlideClient that keeps the ground truth, the amplifier output and the commands with
+    their stamps (raw, decoded afterwards: the test process must not load the machine)."""
+
+    def __init__(self):
+        super().__init__(name='amp_safety', services=True)
+        self.truth_log = []          # (stamp, slide position, slide velocity)
+        self.raw = {md.AMPLIFIER_STATES: [], md.COMMAND: []}
+        reliable = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        for topic, store in self.raw.items():
+            self.create_subscription(JointState, topic, store.append, reliable, raw=True)
+        self.fault = None
+        self.create_subscription(Bool, md.amplifier_fault_topic('x'),
+                                 lambda m: setattr(self, 'fault', m.data), md.STATUS_QOS)
+
+    def _on_truth(self, msg):
+        super()._on_truth(msg)
+        i = list(msg.name).index(md.load_joint('x'))
+        self.truth_log.append((_stamp(msg), msg.position[i], msg.velocity[i]))
+
+    def decoded(self, topic) -> list:
+        """(stamp, effort of x) of every message of `topic` received."""
+        out = []
+        for b in self.raw[topic]:
+            m = deserialize_message(b, JointState)
+            out.append((_stamp(m), m.effort[list(m.name).index('x')]))
+        return out
+
+
+@pytest.fixture
+def slide(rclpy_session, tmp_path):
+    # The recorder first: a reader joining later holds the plant's streams up (conftest
+    # slow_watchdog), which would trip the default 20 ms encoder watchdog.
+    client = Recorder()
+    plant, controller = start_slide(log_dir=tmp_path)
+    nodes = {'plant': plant, 'controller': controller}
+    try:
+        assert client.wait_ready(30.0), \
+            f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
+        # Discovery holds streams up for a while after start-up, long enough to trip the
+        # default encoder watchdog (conftest.slow_watchdog); this test is about what follows.
+        _enable(client)
+        yield client, nodes, tmp_path
+    finally:
+        client.destroy_node()
+        for name in ('controller', 'plant'):
+            nodes[name].stop()
+
+
+def _enable(client) -> None:
+    """Once the streams have settled: reset + enable, the axis closed and unfaulted."""
+    client.spin_until(lambda: False, 1.0)
+    assert client.call('reset').success
+    assert client.call('enable', True).success
+    assert client.spin_until(lambda: client.status['x'] & Status.ENABLED
+                             and not client.status['x'] & FAULTS, 2.0), \
+        f'axis not enabled: {Status(client.status["x"])!r}'
+
+
+def _cruise(client):
+    """Start the long move and spin until the slide runs at max_velocity."""
+    client.pub_target.publish(md.joint_state(client.get_clock().now().to_msg(), ['x'],
+                                             [LONG_MOVE]))
+    cruising = client.spin_until(
+        lambda: client.truth_log and client.truth_log[-1][2] >= 0.98 * MAX_VELOCITY
+        or client.status['x'] & FAULTS, 5.0)
+    word = Status(client.status['x'])
+    assert cruising and not word & FAULTS, \
+        f'slide not cruising: v = {client.truth_log[-1][2]:.4f} m/s, status {word!r}'
+    client.spin_until(lambda: False, 0.2)       # cruise a little
+    word = Status(client.status['x'])
+    assert word & Status.ENABLED and not word & FAULTS, \
+        f'the axis faulted while cruising, before the stop: {word!r} (a DDS stall of the ' \
+        f'loaded machine, see conftest.slow_watchdog)'
+
+
+def _after_stop(client, t_stop: float) -> dict:
+    """Spin 1 s, then measure from t_stop on: time to 0 V (from the stop and from the last
+    command the plant could have had), travel, time to rest."""
+    client.spin_until(lambda: False, 1.0)
+    truth = client.truth_log
+    before = [s for s in truth if s[0] <= t_stop]
+    after = [s for s in truth if s[0] > t_stop]
+    assert before and len(after) > 500, 'ground truth missing around the stop'
+    amp = [s for s in client.decoded(md.AMPLIFIER_STATES) if s[0] > t_stop - 0.05]
+    zero = next(t for t, v in amp if v == 0.0 and t > t_stop - 0.05
+                and all(w == 0.0 for s, w in amp if s >= t))
+    commands = [t for t, v in client.decoded(md.COMMAND) if v != 0.0]
+    moving = [(t, v) for t, _, v in after if abs(v) > 1e-3]
+    return {
+        'zero_after_stop': zero - t_stop,
+        'zero_after_last_command': zero - max(commands),
+        'travel': after[-1][1] - before[-1][1],
+        'rest_after_stop': (moving[-1][0] if moving else after[0][0]) - t_stop,
+        'velocity_at_stop': before[-1][2],
+    }
+
+
+def _restart_and_move(client, nodes, log_dir) -> float:
+    """A new controller: reset + enable, a 1-inch move; the true slide error in counts."""
+    client.status['x'] = None
+    nodes['controller'] = NodeProcess('controller_node', params_dir() / 'controller.yaml',
+                                      log_path=log_dir / 'controller2.log')
+    assert client.wait_ready(30.0), f'controller did not come back: {client.not_ready()}'
+    _enable(client)
+    assert client.spin_until(lambda: client.fault is False, 2.0), 'amplifier still faulted'
+    target = round((client.load_position() + INCH) / COUNT) * COUNT
+    t = client.move({'x': target}, timeout=10.0)
+    assert t is not None, f'no MOTION_DONE, status {Status(client.status["x"])!r}'
+    client.spin_until(lambda: False, 0.05)
+    return (client.load_position() - target) / COUNT
+
+
+def _check(m: dict) -> None:
+    print(', '.join(f'{k} {v * 1e3:.2f} {"mm" if k == "travel" else "ms"}'
+                    if k != 'velocity_at_stop' else f'{k} {v:.4f} m/s' for k, v in m.items()))
+    assert m['velocity_at_stop'] >= 0.98 * MAX_VELOCITY, m
+    # 0 V within the watchdog: the plant checks it once per 1 ms cycle; 3 ms for the machine.
+    assert 0.0 <= m['zero_after_last_command'] <= COMMAND_TIMEOUT + 0.003, m
+    assert 0.0 <= m['zero_after_stop'] <= COMMAND_TIMEOUT + 0.003, m
+    assert 0.0 <= m['travel'] <= 0.005, m
+    assert m['rest_after_stop'] <= 0.5, m
+
+
+def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
+    """SIGKILL: nothing of the controller runs any more; the plant's command watchdog puts the
+    output to 0 V after command_timeout, says so on x/amplifier_fault, and brakes."""
+    client, nodes, log_dir = slide
+    _cruise(client)
+    t_stop = time.time()                          # ROS time in real time: the stamps' clock
+    nodes['controller'].proc.send_signal(signal.SIGKILL)
+    m = _after_stop(client, t_stop)
+    assert client.fault is True
+    _check(m)
+    assert 'x: amplifier fault' in (log_dir / 'plant.log').read_text()
+    error = _restart_and_move(client, nodes, log_dir)
+    print(f'after restart: slide {error:+.2f} counts from the target')
+    assert abs(error) <= 1.0
+
+
+def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
+    """SIGINT (Ctrl-C, launch's stop): the controller itself opens the loop and commands 0 V
+    before it exits (code 0); the plant's watchdog then brakes the slide."""
+    client, nodes, log_dir = slide
+    _cruise(client)
+    t_stop = time.time()
+    nodes['controller'].proc.send_signal(signal.SIGINT)
+    m = _after_stop(client, t_stop)
+    assert nodes['controller'].proc.wait(5.0) == 0
+    commands = client.decoded(md.COMMAND)
+    assert commands[-1][1] == 0.0, commands[-5:]            # its last word: 0 V
+    assert not client.status['x'] & Status.ENABLED          # and the loop open
+    assert 'loops opened, 0 V commanded' in (log_dir / 'controller.log').read_text()
+    _check(m)
+    error = _restart_and_move(client, nodes, log_dir)
+    print(f'after restart: slide {error:+.2f} counts from the target')
+    assert abs(error) <= 1.0
