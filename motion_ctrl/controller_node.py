@@ -349,6 +349,9 @@ def run(node_class, args=None) -> int:
         print(f'{node_class.__name__}: bad parameter{where}: {msg}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    problem = ros_env.realtime(node.get_parameter('realtime_priority').value)
+    if problem:
+        node.get_logger().warning(problem)
     spin(node)
     return 0
 

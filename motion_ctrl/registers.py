@@ -142,6 +142,16 @@ def _r(*args, **kw) -> Register:
     return Register(*args, **kw)
 
 
+# Both nodes: the scheduling of the servo process (ros_env.realtime applies it).
+REALTIME_PRIORITY = _r(
+    'realtime_priority', 'integer', 30, '',
+    'SCHED_FIFO priority of every thread of the node (the servo loop and its DDS threads); 0: '
+    'normal scheduling. At normal priority CPU load, and ROS tools joining the graph (Fast DDS '
+    "shared-memory ports of the node's DDS threads then look stalled to the newcomer, "
+    'eProsima/Fast-DDS#6535), hold encoder samples past feedback_timeout. Needs CAP_SYS_NICE or '
+    'an rtprio limit (ulimit -r); without it the node warns and runs at normal priority.',
+    'LinuxCNC servo-thread, PMAC real-time interrupt', min=0, max=98, read_only=True)
+
 # Controller-wide parameters (not per axis).
 CONTROLLER_GLOBALS = (
     _r('axes', 'string_array', ['x'], '', 'Names of the axes this controller runs.',
@@ -151,6 +161,7 @@ CONTROLLER_GLOBALS = (
     _r('feedback_timeout', 'double', 0.02, 's',
        'Encoder data older than this opens the loop (FEEDBACK_FAULT).', min=0.0,
        min_exclusive=True, max=10.0),
+    REALTIME_PRIORITY,
 )
 
 MODES = ('position_pid', 'position_ipd', 'velocity_pid', 'velocity_ipd')
@@ -355,6 +366,7 @@ PLANT_GLOBALS = (
        max=1.0e6, read_only=True),
     _r('lockstep', 'integer', 0, '', '1: advance one period per controller command and publish '
        '/clock (deterministic sim time).', min=0, max=1, read_only=True),
+    REALTIME_PRIORITY,
 )
 PLANT_AXIS = {r.name: r for r in PLANT_PARAMETERS}
 

@@ -35,6 +35,40 @@ def executor(context=None):
     return Executor(context=context)
 
 
+def realtime(priority: int) -> str | None:
+    """Run every thread of this process under SCHED_FIFO at `priority` (0: leave the normal
+    scheduling); threads made later inherit it from the thread that makes them. Returns why it
+    could not be done (no CAP_SYS_NICE or rtprio limit, not Linux), or None.
+
+    A servo loop on a general-purpose kernel runs in a real-time thread (LinuxCNC's servo-thread,
+    PMAC's real-time interrupt). Here it also keeps the DDS threads of the node prompt: a Fast
+    DDS shared-memory port whose listener thread is not scheduled in time looks stalled to
+    another participant's health check, and the node's streams then pause for the check's
+    333 ms timeout (eProsima/Fast-DDS#6535) whenever a ROS tool joins the graph. Measured in
+    README ("Timing and DDS").
+    """
+    if priority <= 0:
+        return None
+    if not hasattr(os, 'sched_setscheduler'):
+        return 'real-time scheduling is not available on this system'
+    param = os.sched_param(priority)
+    try:
+        tids = [int(t) for t in os.listdir('/proc/self/task')]
+    except OSError:
+        tids = [0]
+    try:
+        for tid in tids:
+            try:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            except ProcessLookupError:
+                pass                    # (a thread that ended meanwhile)
+    except PermissionError:
+        return (f'cannot run at real-time priority {priority} (SCHED_FIFO needs CAP_SYS_NICE or '
+                f'`ulimit -r {priority}`): normal scheduling, where CPU load and ROS tools '
+                f'joining the graph can delay encoder samples past feedback_timeout')
+    return None
+
+
 SHM_DIR = '/dev/shm'
 _SHM_LOCK = re.compile(r'^fastdds_(port\d+|[0-9a-f]{16})_(el|sl)$')
 
