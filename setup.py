@@ -33,6 +33,7 @@ EXECUTABLES = {
     'benchmark': 'motion_ctrl.benchmark:main',
     'record': 'motion_ctrl.record:main',
     'report': 'motion_ctrl.report:main',
+    'soak': 'motion_ctrl.soak:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

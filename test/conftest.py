@@ -24,9 +24,9 @@ if sys.path[0] != REPO_ROOT:
 import pytest  # noqa: E402
 
 
-@pytest.fixture(scope='session', autouse=True)
+@pytest.fixture(autouse=True)
 def no_zombie_shm():
-    """Before and after the run: the shared-memory files of DDS processes that died (some
+    """Before and after every test: the shared-memory files of DDS processes that died (some
     tests kill nodes on purpose) go, so their locked port mutexes cannot stall later nodes."""
     from motion_ctrl import ros_env
     ros_env.clean_zombie_shm()
