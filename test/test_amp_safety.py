@@ -75,12 +75,16 @@ class Recorder(SlideClient):
 
 @pytest.fixture
 def slide(rclpy_session, tmp_path):
+    # The recorder first: a reader joining later holds the plant's streams up (conftest
+    # slow_watchdog), which would trip the default 20 ms encoder watchdog.
     client = Recorder()
     plant, controller = start_slide(log_dir=tmp_path)
     nodes = {'plant': plant, 'controller': controller}
     try:
         assert client.wait_ready(30.0), \
             f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
+        # Discovery holds streams up for a while after start-up, long enough to trip the
+        # default encoder watchdog (conftest.slow_watchdog); this test is about what follows.
         _enable(client)
         yield client, nodes, tmp_path
     finally:
@@ -112,7 +116,8 @@ def _cruise(client):
     client.spin_until(lambda: False, 0.2)       # cruise a little
     word = Status(client.status['x'])
     assert word & Status.ENABLED and not word & FAULTS, \
-        f'the axis faulted while cruising, before the stop: {word!r}'
+        f'the axis faulted while cruising, before the stop: {word!r} (a DDS stall of the ' \
+        f'loaded machine, see conftest.slow_watchdog)'
 
 
 def _after_stop(client, t_stop: float) -> dict:

@@ -219,11 +219,13 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory):
+def slide(rclpy_session, tmp_path_factory, slow_watchdog):
     from motion_ctrl.client import SlideClient
     from motion_ctrl.processes import start_slide
     logs = tmp_path_factory.mktemp('slide_logs')
-    plant, controller = start_slide(log_dir=logs)
+    # The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording
+    # is under test here, not the feedback watchdog.
+    plant, controller = start_slide(slow_watchdog, log_dir=logs)
     client = SlideClient(name='record_test_client')
     try:
         assert client.wait_ready(30.0), f'slide did not come up ({client.not_ready()}); logs in {logs}'

@@ -11,9 +11,9 @@ COUNT = INCH / 10000
 
 
 @pytest.fixture
-def slide(rclpy_session, tmp_path, request):
+def slide(rclpy_session, tmp_path, request, slow_watchdog):
     feedback = request.param
-    plant, controller = start_slide({'x.feedback': feedback}, log_dir=tmp_path)
+    plant, controller = start_slide(slow_watchdog | {'x.feedback': feedback}, log_dir=tmp_path)
     client = SlideClient(name=f'headline_{feedback}')
     try:
         assert client.wait_ready(30.0), f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'

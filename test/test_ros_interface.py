@@ -17,13 +17,13 @@ REPO = pathlib.Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
-def three_axes(rclpy_session, tmp_path, node_env):
+def three_axes(rclpy_session, tmp_path, node_env, slow_watchdog):
     axes = "['x','y','z']"   # quoted: a bare y is YAML for true
     d = params_dir()
     plant = NodeProcess('plant_node', d / 'plant.yaml', {'axes': axes},
                         tmp_path / 'plant.log', env=node_env)
     controller = NodeProcess('controller_node', d / 'controller.yaml',
-                             {'axes': axes},
+                             {'axes': axes} | slow_watchdog,
                              tmp_path / 'controller.log', env=node_env)
     client = SlideClient(axes=('x', 'y', 'z'), name='three_axes_client')
     try:
