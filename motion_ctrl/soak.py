@@ -2,7 +2,8 @@
 participants joining and leaving (`motion_ctrl.visitor`, like `ros2 param get` or `ros2 topic
 echo`), optionally a recorder started and stopped and a busy CPU loop beside it.
 
-`scripts/soak [--minutes 10] [--interval 5] [--busy 1]` runs it with the shipped parameters and
+`scripts/soak [--minutes 10] [--interval 5] [--busy 1] [--realtime-priority 30]` runs it with
+the shipped parameters (and the nodes at real-time priority unless told 0) and
 prints the count of moves, of faults (FEEDBACK_FAULT, FOLLOWING_ERROR_FATAL), of moves that end
 within 1 linear count on the true slide, the longest encoder wait the controller saw, and the RSS
 of both nodes at start and end. The churn test (test/test_ros_churn.py) drives the same
@@ -120,6 +121,8 @@ def main(argv=None) -> int:
     ap.add_argument('--interval', type=float, default=5.0,
                     help='seconds between visitors (new ROS participants)')
     ap.add_argument('--busy', type=int, default=1, help='busy CPU loops beside the nodes')
+    ap.add_argument('--realtime-priority', type=int, default=30,
+                    help='realtime_priority of both nodes (0: normal scheduling)')
     ap.add_argument('-o', '--out', default=None, help='log directory (default out/soak-<time>)')
     a = ap.parse_args(argv)
     domain = ros_env.private_domain()
@@ -130,8 +133,10 @@ def main(argv=None) -> int:
     out = pathlib.Path(a.out or datetime.datetime.now().strftime('out/soak-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
     print(f'soak: {a.minutes:g} min of 1-inch moves, a visitor every {a.interval:g} s, '
-          f'{a.busy} busy loop(s) (ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
-    nodes = start_slide(log_dir=out)
+          f'{a.busy} busy loop(s), realtime_priority {a.realtime_priority} '
+          f'(ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
+    rt = {'realtime_priority': a.realtime_priority}
+    nodes = start_slide(rt, rt, log_dir=out)
     busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(a.busy)]
     rclpy.init()
     client = SlideClient(services=True)

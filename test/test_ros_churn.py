@@ -1,6 +1,7 @@
 """Issue 11: the servo loop keeps running while people use ROS on it.
 
-Plant and controller with the shipped parameters (feedback_timeout 0.02 s), the axis moving
+Plant and controller with the shipped parameters (feedback_timeout 0.02 s) at real-time priority
+(realtime_priority 30, README Notes), the axis moving
 1 inch back and forth, while 50 short-lived participants (motion_ctrl.visitor: a node that reads
 a register, subscribes to joint_states and x/status for a moment, and exits) join and leave and
 a recorder starts and stops: no FEEDBACK_FAULT, no refusal, every move within 1 count.
@@ -19,7 +20,8 @@ VISITORS = 50
 
 @pytest.mark.timeout(300)
 def test_joining_tools_and_a_recorder_do_not_open_the_loop(rclpy_session, tmp_path, node_env):
-    plant, controller = start_slide(log_dir=tmp_path)       # the shipped parameters
+    rt = {'realtime_priority': 30}
+    plant, controller = start_slide(rt, rt, log_dir=tmp_path)
     client = SlideClient(name='churn', services=True)
     recorder = None
     try:
