@@ -123,6 +123,11 @@ def main(argv=None) -> int:
     ap.add_argument('--busy', type=int, default=1, help='busy CPU loops beside the nodes')
     ap.add_argument('--realtime-priority', type=int, default=30,
                     help='realtime_priority of both nodes (0: normal scheduling)')
+    ap.add_argument('--visitors', type=int, default=None,
+                    help='stop after this many visitors instead of after --minutes')
+    ap.add_argument('--parallel', type=int, default=1, help='visitors alive at once, at most')
+    ap.add_argument('--record', action='store_true',
+                    help='run `record` from the first to the second third of the visitors')
     ap.add_argument('-o', '--out', default=None, help='log directory (default out/soak-<time>)')
     a = ap.parse_args(argv)
     domain = ros_env.private_domain()
@@ -140,17 +145,20 @@ def main(argv=None) -> int:
     busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(a.busy)]
     rclpy.init()
     client = SlideClient(services=True)
-    visitors = None
+    visitors = recorder = None
     try:
         if not client.wait_ready(30.0):
             print(f'soak: the nodes did not come up ({client.not_ready()})', file=sys.stderr)
             return 1
         rss0 = [rss_kb(n.proc.pid) for n in nodes]
         soak = Soak(client)
-        visitors = Visitors(a.interval).start()
+        visitors = Visitors(a.interval, a.visitors, a.parallel).start()
         end = time.monotonic() + 60.0 * a.minutes
-        while time.monotonic() < end:
+        while (not visitors.done() if a.visitors else time.monotonic() < end):
             soak.move()
+            if a.record:
+                recorder = _record_between(recorder, visitors, out / 'bag')
+        soak.move()
         visitors.stop()
         rss1 = [rss_kb(n.proc.pid) for n in nodes]
     finally:
@@ -158,6 +166,8 @@ def main(argv=None) -> int:
             visitors.stop()
         for b in busy:
             b.kill()
+        if recorder is not None and recorder.poll() is None:
+            recorder.kill()
         client.destroy_node()
         rclpy.try_shutdown()
         rcs = [n.stop() for n in reversed(nodes)]
@@ -170,7 +180,24 @@ def main(argv=None) -> int:
     print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
     for f in soak.faults:
         print(f'soak: fault: {f}')
-    return 0 if not soak.faults and soak.within_1_count == soak.moves else 1
+    if a.record:
+        print(f'soak: recorder exit code {recorder.returncode if recorder else None}')
+    ok = (not soak.faults and soak.within_1_count == soak.moves and not visitors.failed
+          and 'FEEDBACK_FAULT' not in log and (not a.record or recorder.returncode == 0))
+    return 0 if ok else 1
+
+
+def _record_between(recorder, visitors: Visitors, bag):
+    """`record` started when a third of the visitors came, stopped (SIGINT) at two thirds."""
+    import signal
+    if recorder is None and visitors.started >= visitors.count // 3:
+        return subprocess.Popen([sys.executable, '-m', 'motion_ctrl.record', '-o', str(bag)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if recorder is not None and recorder.poll() is None \
+            and visitors.started >= 2 * visitors.count // 3:
+        recorder.send_signal(signal.SIGINT)
+        recorder.wait(30.0)
+    return recorder
 
 
 if __name__ == '__main__':
