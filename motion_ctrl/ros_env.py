@@ -9,7 +9,6 @@ parallel runs on one machine don't see each other. Call before rclpy.init().
 import fcntl
 import os
 import re
-import time
 
 
 def local_discovery() -> None:
@@ -72,8 +71,6 @@ def realtime(priority: int) -> str | None:
 
 SHM_DIR = '/dev/shm'
 _SHM_LOCK = re.compile(r'^fastdds_(port\d+|[0-9a-f]{16})_(el|sl)$')
-_SHM_PORT = re.compile(r'^fastdds_port\d+$')
-PORT_GRACE = 5.0    # s: a port younger than this may be one whose owner is still creating it
 
 
 def clean_zombie_shm(shm_dir: str = SHM_DIR) -> int:
@@ -81,13 +78,10 @@ def clean_zombie_shm(shm_dir: str = SHM_DIR) -> int:
     `fastdds shm clean` does (that tool is not in the pip wheels). Returns the files removed.
 
     Every segment and port has a lock file (`_el`/`_sl`) that its owner holds with flock while
-    it lives; one nobody holds belongs to a dead process (a SIGKILL, a crash). A port segment
-    without a lock file (its owner exited; Fast DDS leaves the segment for the writers that
-    still have it mapped) goes too once it is PORT_GRACE old. Left behind, a port's mutex can
-    stay locked by a writer that was killed inside it, and the next process given that port
-    number opens the same segment and waits on the mutex: seen as nodes taking 30 s to start
-    and exit, and as a plant held up for 15 s. Files of live processes, of any run on this
-    machine, are left alone.
+    it lives; one nobody holds belongs to a dead process (a SIGKILL, a crash). Left behind, a
+    port's named mutex can stay locked, and every process that later opens that port number
+    waits 2 s for it (seen here as nodes taking 30 s to start and exit). Files of live
+    processes, of any run on this machine, are left alone.
     """
     try:
         names = os.listdir(shm_dir)
@@ -98,25 +92,8 @@ def clean_zombie_shm(shm_dir: str = SHM_DIR) -> int:
         m = _SHM_LOCK.match(name)
         if not m or _locked(os.path.join(shm_dir, name)):
             continue
-        removed += _remove(shm_dir, name, f'fastdds_{m.group(1)}')
-    now = time.time()
-    for name in os.listdir(shm_dir):
-        if _SHM_PORT.match(name) and not any(
-                os.path.exists(os.path.join(shm_dir, f'{name}_{kind}')) for kind in ('el', 'sl')):
-            try:
-                if now - os.stat(os.path.join(shm_dir, name)).st_ctime < PORT_GRACE:
-                    continue
-            except OSError:
-                continue
-            removed += _remove(shm_dir, name)
-    return removed
-
-
-def _remove(shm_dir: str, *names: str) -> int:
-    """Remove the files (and each segment's named mutex); returns how many were there."""
-    removed = 0
-    for base in names:
-        for f in (base, f'sem.{base}_mutex') if not base.endswith(('_el', '_sl')) else (base,):
+        base = f'fastdds_{m.group(1)}'
+        for f in (name, base, f'sem.{base}_mutex'):
             try:
                 os.remove(os.path.join(shm_dir, f))
                 removed += 1
