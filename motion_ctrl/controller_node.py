@@ -332,9 +332,6 @@ def run(node_class, args=None) -> int:
                                   InvalidParameterValueException, ParameterException)
     from rclpy.signals import SignalHandlerOptions
     ros_env.local_discovery()
-    # A port left by a killed process must not be reused with its mutex still locked (a
-    # real-time node would wait on it at the top of the machine's priorities).
-    ros_env.clean_zombie_shm()
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override

@@ -24,10 +24,12 @@ if sys.path[0] != REPO_ROOT:
 import pytest  # noqa: E402
 
 
-@pytest.fixture(autouse=True)
+@pytest.fixture(scope='session', autouse=True)
 def no_zombie_shm():
-    """Before and after every test: the shared-memory files of DDS processes that died (some
-    tests kill nodes on purpose) go, so their locked port mutexes cannot stall later nodes."""
+    """Before and after the run: the shared-memory files of DDS processes that died (some
+    tests kill nodes on purpose) go, so their locked port mutexes cannot stall later nodes.
+    Not between tests: the check takes each lock file's flock for a moment, and a participant
+    starting meanwhile finds its lock taken (its shared-memory port then fails)."""
     from motion_ctrl import ros_env
     ros_env.clean_zombie_shm()
     yield
