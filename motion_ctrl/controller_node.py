@@ -79,14 +79,17 @@ class ControllerNode(ros_params.RegisterNode):
         self.waited = {a: 0.0 for a in self.axis_names}
 
         qos = md.SERVO_QOS
-        stream = lambda topic: md.JointStateStream(self.create_publisher(JointState, topic, qos))
+        stream = lambda topic: md.JointStateStream(self.create_publisher(JointState, topic, qos),
+                                                   self._publish_refused)
         self.pub_command = stream(md.COMMAND)
         self.pub_joint = stream(md.JOINT_STATES)
         self.pub_reference = stream(md.REFERENCE_STATES)
         self.pub_motor = stream(md.MOTOR_STATES)
-        self.pub_status = {a: self.create_publisher(UInt32, md.status_topic(a), md.STATUS_QOS)
+        self.pub_status = {a: md.Stream(self.create_publisher(UInt32, md.status_topic(a),
+                                                              md.STATUS_QOS), self._publish_refused)
                            for a in self.axis_names}
-        self.pub_diag = self.create_publisher(DiagnosticArray, md.DIAGNOSTICS, 10)
+        self.pub_diag = md.Stream(self.create_publisher(DiagnosticArray, md.DIAGNOSTICS, 10),
+                                  self._publish_refused)
         self.create_subscription(JointState, md.ENCODERS, self._on_encoders, md.SERVO_READ_QOS)
         self.create_subscription(JointState, md.TARGET_POSITION, self._on_target_position, 10)
         self.create_subscription(JointState, md.TARGET_VELOCITY, self._on_target_velocity, 10)
@@ -148,7 +151,7 @@ class ControllerNode(ros_params.RegisterNode):
             self._tick(msg.header.stamp)
         elif self.sim_time and stamp == self.last_tick and self.pub_command.names:
             # The lockstep plant sent this sample again: our answer did not reach it.
-            self.pub_command.publisher.publish(self.pub_command.msg)
+            self.pub_command.send(self.pub_command.msg)
 
     def _targets(self, msg, field, what):
         try:
@@ -271,10 +274,14 @@ class ControllerNode(ros_params.RegisterNode):
         for a, axis in self.axes.items():
             s = int(axis.status)
             if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
-                self.pub_status[a].publish(UInt32(data=s))
+                self.pub_status[a].send(UInt32(data=s))
                 self.last_status[a] = s
                 self.last_status_time[a] = now
         self.stats.work(time.perf_counter() - t_start)
+
+    def _publish_refused(self, topic: str, error: Exception) -> None:
+        self.get_logger().warning(f'{topic}: publish refused ({error}); the loop runs on',
+                                  throttle_duration_sec=1.0)
 
     def shutdown_outputs(self) -> None:
         """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V
@@ -288,13 +295,13 @@ class ControllerNode(ros_params.RegisterNode):
             axis.enable(False)
         self.pub_command.publish(stamp, self.axis_names, effort=[0.0] * len(self.axis_names))
         for a, axis in self.axes.items():
-            self.pub_status[a].publish(UInt32(data=int(axis.status)))
+            self.pub_status[a].send(UInt32(data=int(axis.status)))
         self.pub_command.publisher.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_WAIT))
         self.get_logger().info(f'stopped: loops opened, 0 V commanded on {self.axis_names}')
 
     def _publish_diagnostics(self) -> None:
         extra = {} if self.sync is None else {'timer_phase_shifts': self.sync.shifts}
-        self.pub_diag.publish(diagnostics_message(
+        self.pub_diag.send(diagnostics_message(
             self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes, extra))
         self.stats.reset_window()
 

@@ -54,14 +54,14 @@ class PlantNode(ros_params.RegisterNode):
             self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values[a])
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
-        self.pub_enc = md.JointStateStream(
-            self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS))
-        self.pub_truth = md.JointStateStream(
-            self.create_publisher(JointState, md.PLANT_STATES, md.SERVO_QOS))
-        self.pub_amp = md.JointStateStream(
-            self.create_publisher(JointState, md.AMPLIFIER_STATES, md.SERVO_QOS))
-        self.pub_fault = {a: self.create_publisher(Bool, md.amplifier_fault_topic(a),
-                                                   md.STATUS_QOS) for a in self.axis_names}
+        stream = lambda topic: md.JointStateStream(
+            self.create_publisher(JointState, topic, md.SERVO_QOS), self._publish_refused)
+        self.pub_enc = stream(md.ENCODERS)
+        self.pub_truth = stream(md.PLANT_STATES)
+        self.pub_amp = stream(md.AMPLIFIER_STATES)
+        self.pub_fault = {a: md.Stream(self.create_publisher(Bool, md.amplifier_fault_topic(a),
+                                                             md.STATUS_QOS), self._publish_refused)
+                          for a in self.axis_names}
         self.fault = {a: None for a in self.axis_names}      # last published, and when
         self.fault_time = {a: -1.0 for a in self.axis_names}
         self.create_subscription(JointState, md.COMMAND, self._on_command, md.SERVO_READ_QOS)
@@ -80,6 +80,10 @@ class PlantNode(ros_params.RegisterNode):
             f'backlash slide for axes {self.axis_names}: resonance {p.resonance_hz:.0f} Hz, '
             f'backlash {p.params["backlash"] * 1e6:.1f} um, publishing at '
             f'{1 / self.period:g} Hz')
+
+    def _publish_refused(self, topic: str, error: Exception) -> None:
+        self.get_logger().warning(f'{topic}: publish refused ({error}); the plant runs on',
+                                  throttle_duration_sec=1.0)
 
     def current(self, axis: str) -> dict:
         return self.plants[axis].params
@@ -166,7 +170,7 @@ class PlantNode(ros_params.RegisterNode):
                         f'(command_timeout): output 0 V, dynamic brake on')
                 else:
                     self.get_logger().info(f'{a}: amplifier: commands arriving, output on')
-            self.pub_fault[a].publish(Bool(data=tripped))
+            self.pub_fault[a].send(Bool(data=tripped))
             self.fault[a], self.fault_time[a] = tripped, now
 
 

@@ -14,12 +14,12 @@ from msg_defs.topics import (
 )
 from msg_defs.qos import SERVO_QOS, SERVO_READ_QOS, STATUS_QOS
 from msg_defs.joint_state import (joint_state, read_joint_state, MalformedMessage,
-                                 JointStateStream)
+                                 JointStateStream, Stream)
 
 __all__ = [
     'Status', 'COMMAND', 'ENCODERS', 'JOINT_STATES', 'MOTOR_STATES', 'PLANT_STATES',
     'REFERENCE_STATES', 'AMPLIFIER_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY', 'DIAGNOSTICS',
     'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint', 'load_joint', 'split_joint',
     'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'joint_state', 'read_joint_state',
-    'MalformedMessage', 'JointStateStream',
+    'MalformedMessage', 'JointStateStream', 'Stream',
 ]

@@ -46,7 +46,30 @@ def read_joint_state(msg, field: str, known=None, allow_nonfinite=False) -> dict
     return dict(zip(names, values))
 
 
-class JointStateStream:
+class Stream:
+    """A publisher whose refusals are counted and handed to `on_error(topic, exception)`, not
+    raised: a servo loop must not die because one observer is slow (Fast DDS refuses a write to
+    a reliable reader that is far behind: "cannot publish data"; seen killing the controller in
+    its tick)."""
+
+    def __init__(self, publisher, on_error=None):
+        self.publisher = publisher
+        self.on_error = on_error
+        self.failures = 0
+
+    def send(self, msg) -> bool:
+        """Publish `msg`; True when the middleware took it."""
+        try:
+            self.publisher.publish(msg)
+            return True
+        except Exception as e:       # rclpy's RCLError from rmw_publish (not importable here)
+            self.failures += 1
+            if self.on_error is not None:
+                self.on_error(self.publisher.topic_name, e)
+            return False
+
+
+class JointStateStream(Stream):
     """Publishes one JointState stream at the servo rate without rebuilding the message.
 
     A JointState costs ~20 us to construct in rclpy (header, stamp, field checks); at 1 kHz and
@@ -56,8 +79,8 @@ class JointStateStream:
     the sample anyway. `msg` always holds the latest sample.
     """
 
-    def __init__(self, publisher):
-        self.publisher = publisher
+    def __init__(self, publisher, on_error=None):
+        super().__init__(publisher, on_error)
         self.msg = JointState()
         self.names = None
 
@@ -71,4 +94,5 @@ class JointStateStream:
         m.velocity = array('d', velocity)
         m.effort = array('d', effort)
         if self.publisher.get_subscription_count():
-            self.publisher.publish(m)
+            self.send(m)
+
