@@ -7,7 +7,6 @@ whole run is bit-identical. Used by the lockstep test and the benchmark.
 """
 from __future__ import annotations
 
-import itertools
 import os
 import pathlib
 import time
@@ -22,15 +21,6 @@ from motion_ctrl import ros_env
 from motion_ctrl.processes import NodeProcess, params_dir
 
 
-_runs = itertools.count()
-
-
-def _private_domain() -> int:
-    """A ROS domain for one run, other than this process's, so runs don't meet each other."""
-    base = int(os.environ.get('ROS_DOMAIN_ID', '1'))
-    return (base + 50 + next(_runs)) % 101 + 1
-
-
 def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
                  timeout: float = 60.0, log_dir=None):
     """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second).
@@ -42,7 +32,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     import rclpy
     d = params_dir()
     log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
-    domain = _private_domain()
+    domain = ros_env.spare_domain()
     # Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of
     # stopped processes in /dev/shm, and a new participant on the same domain and port was
     # seen reading an earlier run's last samples from them (a stale /clock ended a run at

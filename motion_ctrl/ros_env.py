@@ -7,6 +7,7 @@ nodes (demo, tests, benchmark) also get a ROS_DOMAIN_ID of their own when none (
 parallel runs on one machine don't see each other. Call before rclpy.init().
 """
 import fcntl
+import itertools
 import os
 import re
 
@@ -21,6 +22,19 @@ def private_domain() -> int:
     if os.environ.get('ROS_DOMAIN_ID', '0') in ('', '0'):
         os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
     return int(os.environ['ROS_DOMAIN_ID'])
+
+
+_spare_domains = itertools.count()
+
+
+def spare_domain() -> int:
+    """Another ROS domain than this process's, a new one per call (cycling through 1..101): for
+    runs that must not meet the rest (lockstep), and for tests that SIGKILL nodes. A killed
+    participant leaves its shared-memory port behind, and a participant that later gets the
+    same port number on that domain inherits it with the dead listener's unread slots (sends
+    to it were seen dropped as "port full": service calls to the new node went unanswered)."""
+    base = int(os.environ.get('ROS_DOMAIN_ID', '1'))
+    return (base + 25 + next(_spare_domains)) % 101 + 1
 
 
 def executor(context=None):

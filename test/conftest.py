@@ -48,6 +48,22 @@ def rclpy_session():
         rclpy.try_shutdown()
 
 
+@pytest.fixture
+def own_domain(rclpy_session, monkeypatch):
+    """For a test that SIGKILLs nodes: a ROS domain of its own (ros_env.spare_domain: what a
+    killed participant leaves in shared memory must not reach the later tests' nodes), set in
+    the environment the test's node processes inherit, and an rclpy context on it for the
+    test's own clients (not the session's participant, which would keep the dead ports open).
+    Yields the context."""
+    from motion_ctrl import ros_env
+    domain = ros_env.spare_domain()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    context = rclpy_session.Context()
+    rclpy_session.init(context=context, domain_id=domain)
+    yield context
+    context.try_shutdown()
+
+
 @pytest.fixture(scope='session')
 def slow_watchdog():
     """Controller parameters for DDS tests that are not about the encoder watchdog.

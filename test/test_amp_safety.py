@@ -48,8 +48,8 @@ class Recorder(SlideClient):
     """SlideClient that keeps the ground truth, the amplifier output and the commands with
     their stamps (raw, decoded afterwards: the test process must not load the machine)."""
 
-    def __init__(self):
-        super().__init__(name='amp_safety', services=True)
+    def __init__(self, context):
+        super().__init__(name='amp_safety', context=context, services=True)
         self.truth_log = []          # (stamp, slide position, slide velocity)
         self.raw = {md.AMPLIFIER_STATES: [], md.COMMAND: []}
         reliable = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
@@ -74,10 +74,10 @@ class Recorder(SlideClient):
 
 
 @pytest.fixture
-def slide(rclpy_session, tmp_path):
+def slide(own_domain, tmp_path):
     # The recorder first: a reader joining later holds the plant's streams up (conftest
     # slow_watchdog), which would trip the default 20 ms encoder watchdog.
-    client = Recorder()
+    client = Recorder(own_domain)
     plant, controller = start_slide(log_dir=tmp_path)
     nodes = {'plant': plant, 'controller': controller}
     try:

@@ -163,8 +163,8 @@ class Checker:
         from sensor_msgs.msg import JointState
         from diagnostic_msgs.msg import DiagnosticArray
         from motion_ctrl import ros_env
-        self.executor = ros_env.executor()
-        self.node = Node('record_checker')
+        self.executor = ros_env.executor(context)
+        self.node = Node('record_checker', context=context)
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         self.stamps = {t: [] for t in SERVO_TOPICS}
         for t in SERVO_TOPICS:
@@ -188,7 +188,7 @@ class Checker:
                                   int(float(values['overruns_total']))))
 
     def _spin(self):
-        while not self.stop_flag.is_set() and self.rclpy.ok():
+        while not self.stop_flag.is_set() and self.node.context.ok():
             self.executor.spin_once(timeout_sec=0.05)
 
     def wait_matched(self, timeout):
@@ -218,15 +218,13 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 
 
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
-@pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory, slow_watchdog):
+def _slide(logs, watchdog, context=None):
     from motion_ctrl.client import SlideClient
     from motion_ctrl.processes import start_slide
-    logs = tmp_path_factory.mktemp('slide_logs')
     # The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording
     # is under test here, not the feedback watchdog.
-    plant, controller = start_slide(slow_watchdog, log_dir=logs)
-    client = SlideClient(name='record_test_client')
+    plant, controller = start_slide(watchdog, log_dir=logs)
+    client = SlideClient(name='record_test_client', context=context)
     try:
         assert client.wait_ready(30.0), f'slide did not come up ({client.not_ready()}); logs in {logs}'
         yield client
@@ -234,6 +232,17 @@ def slide(rclpy_session, tmp_path_factory, slow_watchdog):
         client.destroy_node()
         controller.stop()
         plant.stop()
+
+
+@pytest.fixture(scope='module')
+def slide(rclpy_session, tmp_path_factory, slow_watchdog):
+    yield from _slide(tmp_path_factory.mktemp('slide_logs'), slow_watchdog)
+
+
+@pytest.fixture
+def own_slide(own_domain, tmp_path, slow_watchdog):
+    """A slide of its own on a domain of its own, for a test that kills a participant."""
+    yield from _slide(tmp_path, slow_watchdog, own_domain)
 
 
 @pytest.fixture(scope='module')
@@ -417,7 +426,7 @@ def test_recorder_api_in_process(slide, tmp_path):
 
 
 # -- 6. SIGKILL: all but the last second is in the bag, after `record --repair` (issue 11) --------
-def test_sigkill_then_repair_keeps_all_but_the_last_second(slide, tmp_path):
+def test_sigkill_then_repair_keeps_all_but_the_last_second(own_slide, tmp_path):
     """The recorder SIGKILLed in the middle of a move leaves an MCAP file and no metadata.yaml:
     `report` names the repair, `record --repair` makes a bag `rosbags` opens, and it holds every
     servo message the independent checker received up to one second before the kill. While
@@ -440,7 +449,8 @@ def test_sigkill_then_repair_keeps_all_but_the_last_second(slide, tmp_path):
                 growth.append((time.monotonic(), size))
             time.sleep(0.01)
 
-    checker = Checker()
+    slide = own_slide
+    checker = Checker(slide.context)
     rec = sampler = None
     try:
         assert checker.wait_matched(15.0), 'checker saw no servo messages'
