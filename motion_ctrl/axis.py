@@ -43,6 +43,17 @@ Soft limits (soft_limit_min / soft_limit_max, on the commanded position in the u
   Should even estop_deceleration not suffice (limits changed under a moving axis), the command
   passes the limit and comes back to it.
 
+Command precedence (RMP: an E-stop is not undone by a lesser stop): ABORT > ESTOP > STOP > a
+move or jog. While a STOP or ESTOP decelerates the axis, a command of a lower level is refused
+with the reason (a STOP during an ESTOP, a target or jog during either); a higher one takes over.
+STOP, ESTOP, ABORT, disable and a fault cancel what was scheduled for later: they advance
+`command_epoch` and say why in `cancelled_by` (the controller node drops scheduled targets of an
+older epoch).
+
+Live register changes that bear on a move in progress (`live_change_refusal`): a feedback change,
+and soft limits that the planned travel would cross, are refused while the axis moves (stop
+first); at rest they apply.
+
 The per-tick path works on values cached at configure time and on plain-int status bits
 (IntFlag arithmetic costs ~1 µs an operation); a Status object is built once per distinct word.
 """
@@ -79,6 +90,12 @@ _S_MOVING = SampledCorrection.MOVING
 _S_CORRECTING = SampledCorrection.CORRECTING
 _S_DONE = SampledCorrection.DONE
 
+# Stop levels of the command precedence (a move or jog is 0, ABORT opens the loop).
+_STOP_LEVEL = {'stop': 1, 'estop': 2}
+# Status words kept in Axis.events when the caller asks for them (harness, tools): a bound, so a
+# long run does not keep every change (~75 bytes each).
+EVENTS_KEPT = 100_000
+
 # ruckig's extrema carry float residue; a limit is "passed" only by more than this [m].
 _LIMIT_EPS = 1e-9
 
@@ -109,7 +126,8 @@ def stopping_distance(speed: float, acceleration: float, max_acceleration: float
 
 
 class Axis:
-    def __init__(self, name: str, registers: dict | None = None, servo_period: float = 1e-3):
+    def __init__(self, name: str, registers: dict | None = None, servo_period: float = 1e-3,
+                 record_events: bool = False):
         self.name = name
         self.servo_period = servo_period
         self.servo = ServoLaw()
@@ -137,7 +155,12 @@ class Axis:
         self.target = None
         self.sampled_offset = 0.0
         self._guard = 0              # jog direction watched against its soft limit (+1/-1/0)
-        self.events = []             # (time, Status word) on every change, for tests and tools
+        # (time, Status word) on every change, when asked for (harness, tests, tools)
+        self.events: list | None = [] if record_events else None
+        self._stopping = 0           # level of the STOP (1) / ESTOP (2) decelerating the axis
+        self.command_epoch = 0       # advanced by STOP, ESTOP, ABORT, disable and faults
+        self.cancelled_by = ''       # ... and what advanced it last
+        self.fault_reason = ''       # why the last fault latched, for the log
         self.time = 0.0
         self.configure(axis_defaults(AXIS_REGISTERS) | (registers or {}))
 
@@ -234,6 +257,51 @@ class Axis:
         self._recompose()
         return False, f'{self.name}: {reason}'
 
+    @property
+    def stopping(self) -> int:
+        """Level of the STOP (1) or ESTOP (2) still decelerating the axis; 0 when none is."""
+        if self._stopping and not (self.enabled and self.profile.moving):
+            self._stopping = 0
+        return self._stopping
+
+    def _refuse_below_stop(self, what: str):
+        level = self.stopping
+        if level:
+            kind = 'ESTOP' if level == 2 else 'STOP'
+            return f'{self.name}: {what} refused: a {kind} is in progress (wait for MOTION_DONE)'
+        return None
+
+    def _cancel(self, why: str) -> None:
+        """What was scheduled for later is void (see the module docstring)."""
+        self.command_epoch += 1
+        self.cancelled_by = why
+
+    def live_change_refusal(self, changes: dict):
+        """Why register `changes` cannot apply to the move in progress, or None: a feedback
+        change (it re-homes the command and would drop the move), and soft limits that the
+        planned travel crosses, are refused while the axis moves. (A jog's travel is its
+        present segment: a limit ahead of it is watched each tick and braked onto.)"""
+        if not (self.enabled and self.profile.moving):
+            return None
+        fb = changes.get('feedback', self.r['feedback'])
+        if fb != self.r['feedback']:
+            return (f'{self.name}.feedback: {fb} refused while the axis moves (a feedback change '
+                    're-homes the command); stop first or wait for MOTION_DONE')
+        lo = changes.get('soft_limit_min', self._soft_lo)
+        hi = changes.get('soft_limit_max', self._soft_hi)
+        if (lo, hi) == (self._soft_lo, self._soft_hi):
+            return None
+        a, b = self.profile.raw_extrema()
+        off = self.sampled_offset
+        a, b = a - off, b - off
+        if b > hi + _LIMIT_EPS:
+            return (f'{self.name}.soft_limit_max: {hi:g} m refused while the axis moves: its '
+                    f'move reaches {b:g} m; stop first or wait for MOTION_DONE')
+        if a < lo - _LIMIT_EPS:
+            return (f'{self.name}.soft_limit_min: {lo:g} m refused while the axis moves: its '
+                    f'move reaches {a:g} m; stop first or wait for MOTION_DONE')
+        return None
+
     def move_to(self, target: float):
         if not _number(target) or not math.isfinite(target):
             return False, f'{self.name}: target {target!r} is not a finite number'
@@ -241,7 +309,7 @@ class Axis:
         if not lo <= target <= hi:
             return self._refuse_limit(f'target {target:g} m outside the soft limits '
                                       f'[{lo:g}, {hi:g}]')
-        reason = self._refuse_unless_ready()
+        reason = self._refuse_unless_ready() or self._refuse_below_stop('target')
         if reason:
             return False, reason
         try:
@@ -264,10 +332,14 @@ class Axis:
     def jog(self, velocity: float):
         if not _number(velocity) or not math.isfinite(velocity):
             return False, f'{self.name}: velocity {velocity!r} is not a finite number'
-        reason = self._refuse_unless_ready()
+        reason = self._refuse_unless_ready() or self._refuse_below_stop('jog')
         if reason:
             return False, reason
         velocity = float(velocity)
+        if abs(velocity) > self._max_vel:
+            # Galil refuses an out-of-range SP; a silent clamp (PMAC Ixx16) hid the mistake.
+            return False, (f'{self.name}: jog at {velocity:g} m/s refused: above max_velocity '
+                           f'{self._max_vel:g} m/s')
         p = self.profile
         off = self.sampled_offset
         if velocity > 0.0 and p.raw_position >= self._soft_hi + off:
@@ -296,6 +368,9 @@ class Axis:
         reason = self._refuse_unless_ready()
         if reason:
             return False, reason
+        level = _STOP_LEVEL[kind]
+        if self.stopping > level:
+            return False, f'{self.name}: an ESTOP is in progress; a STOP does not lower it'
         decel = self._stop_dec if kind == 'stop' else self._estop_dec
         try:
             self.profile.stop(decel)
@@ -306,11 +381,14 @@ class Axis:
         self._guard = 0
         self.settling.start_stop(kind)
         self._brake_within_limits(decel, stop_kind=kind)
+        self._stopping = level
+        self._cancel(kind.upper())
         return True, ''
 
     def abort(self):
         """Open the loop at once, output 0 (RMP ABORT)."""
         self._open_loop()
+        self._cancel('ABORT')
         self.settling.abort()
         self._recompose()
         return True, ''
@@ -318,6 +396,7 @@ class Axis:
     def enable(self, on: bool):
         if not on:
             self._open_loop()
+            self._cancel('disable')
             self.settling.idle()
             self._recompose()
             return True, ''
@@ -452,6 +531,7 @@ class Axis:
 
     def _open_loop(self):
         self.enabled = False
+        self._stopping = 0
         self.sampled.cancel()
         self.servo.reset()
         self.output = 0.0
@@ -496,6 +576,8 @@ class Axis:
             was_enabled = self.enabled
             self._open_loop()
             self._faults |= _FEEDBACK_FAULT
+            self.fault_reason = 'FEEDBACK_FAULT: no new encoder sample within feedback_timeout'
+            self._cancel('FEEDBACK_FAULT')
             if was_enabled:
                 self.settling.abort()    # the fault action: whatever moved is abandoned
             self._recompose()
@@ -566,6 +648,9 @@ class Axis:
         if fatal > 0.0 and abs(fe) > fatal:
             self._open_loop()
             self._faults |= _FE_FATAL
+            self.fault_reason = (f'FOLLOWING_ERROR_FATAL: following error {fe * 1e3:+.3f} mm '
+                                 f'beyond following_error_fatal {fatal * 1e3:g} mm')
+            self._cancel('FOLLOWING_ERROR_FATAL')
             self.settling.abort()
             self._compose(_DONE | (self.settling._bits & _LATCHED))
             return 0.0
@@ -655,4 +740,7 @@ class Axis:
             self._word = s
             word = status_word(s)
             self.status = word
-            self.events.append((self.time, word))
+            if self.events is not None:
+                self.events.append((self.time, word))
+                if len(self.events) > EVENTS_KEPT:
+                    del self.events[:len(self.events) - EVENTS_KEPT]

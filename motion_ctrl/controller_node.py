@@ -34,10 +34,15 @@ from motion_ctrl import ros_env, ros_params
 from motion_ctrl.axis import Axis
 from motion_ctrl.diagnostics import LoopStats, diagnostics_message
 from motion_ctrl.feedback_sync import FeedbackSync
+from msg_defs.status import Status
 from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
                                    CONTROLLER_GLOBAL, consistency)
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
+# A target message naming more joints than this is refused by its size, before any per-name work
+# (a flood of huge messages must not cost the loop).
+MAX_TARGET_NAMES = 256
+REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second, with a count
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
 # s of encoder samples before the loop closes at start-up (real time): while DDS discovery
 # settles, a stream can pause for longer than feedback_timeout right after its first sample.
@@ -100,7 +105,9 @@ class ControllerNode(ros_params.RegisterNode):
         self.last_status_time = {a: -math.inf for a in self.axis_names}
         self.stats = LoopStats(self.period)
         self.last_tick = None
-        self.scheduled = []          # (stamp [s], axis, target) of targets stamped ahead
+        self.scheduled = []          # (stamp [s], axis, target, command epoch) stamped ahead
+        self.prev_faults = {a: 0 for a in self.axis_names}
+        self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
         self.sim_time = self.get_parameter('use_sim_time').value
         # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
         self.timer = None if self.sim_time else self.create_timer(self.period,
@@ -114,6 +121,9 @@ class ControllerNode(ros_params.RegisterNode):
     # -- parameters -----------------------------------------------------------------------------
     def current(self, axis: str) -> dict:
         return self.values[axis] | self.staged.get(axis, {})
+
+    def live_refusal(self, axis: str, changes: dict):
+        return self.axes[axis].live_change_refusal(changes)
 
     def _stage(self, params) -> None:
         for p in params:
@@ -153,11 +163,28 @@ class ControllerNode(ros_params.RegisterNode):
             # The lockstep plant sent this sample again: our answer did not reach it.
             self.pub_command.send(self.pub_command.msg)
 
+    def _refused(self, kind: str, text: str) -> None:
+        """A refusal logged at most once per REFUSAL_LOG_PERIOD per kind, with how many like it
+        were not logged (a stream of bad input must not flood the log or slow the loop)."""
+        now = time.monotonic()
+        entry = self.refusals.setdefault(kind, [-math.inf, 0])
+        if now - entry[0] < REFUSAL_LOG_PERIOD:
+            entry[1] += 1
+            return
+        more = f' ({entry[1]} more refused in the last {now - entry[0]:.1f} s)' \
+            if entry[1] and entry[0] > -math.inf else ''
+        entry[0], entry[1] = now, 0
+        self.get_logger().warning(text + more)
+
     def _targets(self, msg, field, what):
+        if len(msg.name) > MAX_TARGET_NAMES:
+            self._refused(what + ':size', f'{what} refused: {len(msg.name)} names (at most '
+                          f'{MAX_TARGET_NAMES})')
+            return {}
         try:
             return md.read_joint_state(msg, field, known=self.axes)
         except md.MalformedMessage as e:
-            self.get_logger().warning(f'{what} refused: {e}')
+            self._refused(what, f'{what} refused: {e}')
             return {}
 
     def _on_target_position(self, msg: JointState) -> None:
@@ -165,21 +192,32 @@ class ControllerNode(ros_params.RegisterNode):
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         ahead = stamp - self.get_clock().now().nanoseconds * 1e-9
         if targets and 0.0 < ahead <= MAX_SCHEDULE:
-            self.scheduled += [(stamp, a, t) for a, t in targets.items()]
+            self.scheduled += [(stamp, a, t, self.axes[a].command_epoch)
+                               for a, t in targets.items()]
             return
+        self._unschedule(targets, 'a newer immediate target')
         self._move(targets)
+
+    def _unschedule(self, axes, why: str) -> None:
+        """Drop the scheduled targets of `axes`, saying so."""
+        for stamp, a, t, _ in [x for x in self.scheduled if x[1] in axes]:
+            self.get_logger().warning(f'{a}: scheduled target {t:g} m (stamped {stamp:.3f} s) '
+                                      f'cancelled by {why}')
+        self.scheduled = [x for x in self.scheduled if x[1] not in axes]
 
     def _move(self, targets: dict) -> None:
         for a, target in targets.items():
             ok, reason = self.axes[a].move_to(target)
             if not ok:
-                self.get_logger().warning(f'target_position refused: {reason}')
+                self._refused(f'target:{a}', f'target_position refused: {reason}')
 
     def _on_target_velocity(self, msg: JointState) -> None:
-        for a, v in self._targets(msg, 'velocity', 'target_velocity').items():
+        jogs = self._targets(msg, 'velocity', 'target_velocity')
+        self._unschedule(jogs, 'a jog')
+        for a, v in jogs.items():
             ok, reason = self.axes[a].jog(v)
             if not ok:
-                self.get_logger().warning(f'target_velocity refused: {reason}')
+                self._refused(f'jog:{a}', f'target_velocity refused: {reason}')
 
     def _make_services(self, a: str) -> None:
         axis = self.axes[a]
@@ -221,10 +259,14 @@ class ControllerNode(ros_params.RegisterNode):
         if self.staged:
             self._apply_staged()
         if self.scheduled:
+            void = {a for _, a, _, epoch in self.scheduled
+                    if epoch != self.axes[a].command_epoch}
+            for a in void:
+                self._unschedule({a}, self.axes[a].cancelled_by)
             due = [x for x in self.scheduled if x[0] <= now + 1e-9]
             if due:
                 self.scheduled = [x for x in self.scheduled if x[0] > now + 1e-9]
-                self._move({a: t for _, a, t in due})
+                self._move({a: t for _, a, t, _ in due})
         names, outputs = [], []
         age_recorded = False         # (one encoder message carries every axis)
         for a, axis in self.axes.items():
@@ -244,11 +286,12 @@ class ControllerNode(ros_params.RegisterNode):
                 if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
                     continue             # the encoder stream is not established yet: wait
             if stale:
-                if axis.enabled:
+                if not axis.faults & Status.FEEDBACK_FAULT:
+                    opened = 'loop opened' if axis.enabled else 'the loop was open'
                     self.get_logger().error(
                         f'{a}: FEEDBACK_FAULT: no new encoder sample for '
                         f'{self.waited[a] * 1e3:.0f} ms of servo time (the last is stamped '
-                        f'{(now - s_stamp) * 1e3:.0f} ms ago); loop opened, call {a}/reset')
+                        f'{(now - s_stamp) * 1e3:.0f} ms ago); {opened}, call {a}/reset')
                 axis.feedback_fault()
                 out = axis.update(dt, motor, load, sample_dt=0.0)
             else:
@@ -260,6 +303,11 @@ class ControllerNode(ros_params.RegisterNode):
                     age_recorded = True
                     self.stats.feedback_age(age)
                 out = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
+                if axis.faults & Status.FOLLOWING_ERROR_FATAL and \
+                        not self.prev_faults[a] & Status.FOLLOWING_ERROR_FATAL:
+                    self.get_logger().error(f'{a}: {axis.fault_reason}; loop opened, call '
+                                            f'{a}/reset')
+            self.prev_faults[a] = int(axis.faults)
             names.append(a)
             outputs.append(out)
         if names:

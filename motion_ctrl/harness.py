@@ -32,7 +32,7 @@ class Harness:
     def __init__(self, registers: dict | None = None, plant: dict | None = None,
                  servo_period: float = 1e-3, latency_ticks: int = 0, record: bool = True):
         self.T = servo_period
-        self.axis = Axis('x', registers, servo_period)
+        self.axis = Axis('x', registers, servo_period, record_events=True)
         self.plant = SlidePlant(**(plant or {}))
         self.delay = deque([0.0] * latency_ticks)
         self.trace = Trace() if record else None

@@ -184,4 +184,12 @@ class RegisterNode(Node):
             if reasons:
                 return SetParametersResult(successful=False,
                                            reason='; '.join(f'{axis}.{r}' for r in reasons))
+            reason = self.live_refusal(axis, changes)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
+
+    def live_refusal(self, axis: str, changes: dict):
+        """Why `changes` cannot apply to what the axis is doing now, or None (a node whose
+        registers bear on motion in progress says so)."""
+        return None

@@ -274,13 +274,19 @@ def test_jog_at_velocity_then_stop_or_estop(kind, bit, decel):
         decel=float(-np.median(ramp)), stop_ms=stop_time)
 
 
-def test_jog_beyond_max_velocity_is_clamped_and_jog_zero_comes_to_rest():
-    """jog(1 m/s) runs at max_velocity and still reaches MOTION_AT_VELOCITY (the settling
-    target is the clamped velocity); jog(0) brakes at max_acceleration and gives MOTION_DONE a
-    settling time after the command is at rest and |v| <= tolerance, without STOPPED."""
+def test_jog_beyond_max_velocity_is_refused_and_jog_zero_comes_to_rest():
+    """jog(1 m/s) is refused naming max_velocity (Galil refuses an out-of-range SP) and changes
+    nothing; jog(max_velocity) reaches MOTION_AT_VELOCITY; jog(0) brakes at max_acceleration and
+    gives MOTION_DONE a settling time after the command is at rest and |v| <= tolerance, without
+    STOPPED."""
     h = Harness(dict(settling_time=SETTLE))
     rec = Recorder(h)
-    assert h.axis.jog(1.0) == (True, '')
+    word = h.axis.status
+    ok, reason = h.axis.jog(1.0)
+    assert not ok and 'max_velocity' in reason, reason
+    assert h.axis.status == word and not h.axis.profile.moving
+    assert h.axis.jog(-V_MAX * 1.001)[0] is False
+    assert h.axis.jog(V_MAX) == (True, '')
     assert rec.run(0.3, until=lambda h: h.axis.status & S.MOTION_AT_VELOCITY)
     assert max(rec.cmd_vel) == V_MAX
     k0 = len(rec.t)
