@@ -52,8 +52,10 @@ SHUTDOWN_ACK_WAIT = 0.2
 
 
 class ControllerNode(ros_params.RegisterNode):
+    NODE_NAME = 'controller'
+
     def __init__(self, **kwargs):
-        super().__init__('controller', **kwargs)
+        super().__init__(self.NODE_NAME, **kwargs)
         self.globals_table, self.axis_table = CONTROLLER_GLOBAL, CONTROLLER_AXIS
         self.consistency = consistency
         g = {r.name: ros_params.declare(self, r, r.name) for r in CONTROLLER_GLOBALS}
@@ -381,6 +383,11 @@ def spin(node) -> None:
         rclpy.try_shutdown()
 
 
+def argv_names(argv: list[str]) -> set[str]:
+    """Names of the parameters given with -p."""
+    return {b.split(':=', 1)[0] for a, b in zip(argv, argv[1:]) if a in ('-p', '--param')}
+
+
 def run(node_class, args=None) -> int:
     """Start a node; a bad parameter (from a YAML or the command line) exits 2 with one line."""
     from rclpy.exceptions import (InvalidParameterTypeException,
@@ -392,16 +399,25 @@ def run(node_class, args=None) -> int:
     except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override
         print(f'{node_class.__name__}: bad arguments: {str(e).splitlines()[0]}', file=sys.stderr)
         return 2
+    argv = list(args or sys.argv)
+    refusal = ros_params.params_files_refusal(node_class.NODE_NAME, argv)
+    if refusal:
+        print(f'{node_class.__name__}: {refusal}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     try:
         node = node_class()
     except (InvalidParameterValueException, InvalidParameterTypeException,
             ParameterException, ValueError) as e:
-        files = [a for a in (args or sys.argv) if a.endswith(('.yaml', '.yml'))]
-        where = f' (from {", ".join(files)})' if files else ''
         # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
         # <name>"; the reason names the parameter too.
         msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
-        print(f'{node_class.__name__}: bad parameter{where}: {msg}', file=sys.stderr)
+        name = getattr(e, 'parameter_name', None) or next(
+            (w.rstrip(':,') for w in msg.split() if '.' in w.rstrip(':,') or
+             w.rstrip(':,') in argv_names(argv)), None)
+        where = ros_params.where_from(name, argv)
+        print(f'{node_class.__name__}: bad parameter{f" (from {where})" if where else ""}: '
+              f'{msg}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     problem = ros_env.realtime(node.get_parameter('realtime_priority').value)

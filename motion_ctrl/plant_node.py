@@ -38,8 +38,10 @@ LOCKSTEP_RESEND = 0.05   # s of wall time without progress before the sample is 
 
 
 class PlantNode(ros_params.RegisterNode):
+    NODE_NAME = 'plant'
+
     def __init__(self, **kwargs):
-        super().__init__('plant', **kwargs)
+        super().__init__(self.NODE_NAME, **kwargs)
         self.globals_table, self.axis_table = {r.name: r for r in PLANT_GLOBALS}, PLANT_AXIS
         self.consistency = plant_consistency
         g = {r.name: ros_params.declare(self, r, r.name) for r in PLANT_GLOBALS}

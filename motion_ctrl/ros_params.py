@@ -52,7 +52,13 @@ def declare(node, reg, full_name: str):
         if p.type_ == Parameter.Type.NOT_SET:
             node.set_parameters([Parameter(full_name, _TYPES[reg.type][1], [])])
         return plain(node.get_parameter(full_name).value)
-    return plain(node.declare_parameter(full_name, value, desc).value)
+    value = plain(node.declare_parameter(full_name, value, desc).value)
+    # The register's own rule too (rclpy checks the closed range only: feedback_timeout 0 passed)
+    reason = reg.check(value)
+    if reason:
+        raise ValueError(f'{full_name.rsplit(".", 1)[0] + "." if "." in full_name else ""}'
+                         f'{reason}')
+    return value
 
 
 def plain(value):
@@ -80,6 +86,51 @@ def name_type_refusal(node, params, result):
                 reason=f'{p.name}: wrong type {p.type_.name.lower()}, expected '
                        f'{want.name.lower()}{hint}')
     return result
+
+
+def _params_files(args: list[str]) -> list[str]:
+    return [b for a, b in zip(args, args[1:]) if a == '--params-file']
+
+
+def _applies(key: str, node_name: str) -> bool:
+    """Whether a params-file section key selects the node (rcl: `name`, `/ns/name`, `/**`,
+    `/**/name`, `*`)."""
+    last = str(key).rstrip('/').split('/')[-1]
+    return last in (node_name, '*', '**')
+
+
+def params_files_refusal(node_name: str, args: list[str]):
+    """Why the params files given with --params-file cannot configure this node, or None: an
+    empty file, or one with no section for it (`ctrl:` for `controller:`), would run the node
+    on its defaults without a word. (A file rcl cannot parse is refused by rcl first.)"""
+    import yaml
+    for a, b in zip(args, args[1:]):            # launch_ros names nodes with -r __node:=...
+        if a in ('-r', '--remap') and b.split(':=', 1)[0] in ('__node', '__name'):
+            node_name = b.split(':=', 1)[1]
+    for f in _params_files(args):
+        try:
+            with open(f) as fh:
+                data = yaml.safe_load(fh)
+        except (OSError, yaml.YAMLError):
+            continue
+        if not data:
+            return f'{f} is empty: it configures nothing'
+        if not isinstance(data, dict):
+            return f'{f} is not a params file (node name: ros__parameters: ...)'
+        if not any(_applies(k, node_name) and isinstance(v, dict) and 'ros__parameters' in v
+                   for k, v in data.items()):
+            return (f'{f} configures nothing for node {node_name!r} (its sections: '
+                    f'{", ".join(map(str, data))}); expected {node_name}: ros__parameters: ...')
+    return None
+
+
+def where_from(name: str | None, args: list[str]) -> str:
+    """Where a start-up value of parameter `name` came from: `-p name:=value` on the command
+    line (it wins over the files), else the params files."""
+    for a, b in zip(args, args[1:]):
+        if a in ('-p', '--param') and name and b.split(':=', 1)[0] == name:
+            return f'-p {b}'
+    return ', '.join(_params_files(args))
 
 
 class RegisterNode(Node):

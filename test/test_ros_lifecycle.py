@@ -164,3 +164,55 @@ def test_nodes_do_not_outlive_a_killed_starter(node_env, tmp_path):
         os.kill(node_pid, signal.SIGKILL)
         pytest.fail('the node outlived its killed starter')
     assert 'Traceback' not in log.read_text()
+
+
+# Start-up that cannot work stops the node with one line saying where the bad input came from
+# (issue 12): a file that configures nothing for the node ran it on defaults without a word.
+STARTUP_CASES = {
+    'file-with-a-wrong-node-key': ('controller_node', 'ctrl:\n  ros__parameters:\n    x.kp: 1.0\n',
+                                   [], "configures nothing for node 'controller'"),
+    'empty-file': ('plant_node', '', [], 'is empty'),
+    'feedback-timeout-0': ('controller_node', None, ['-p', 'feedback_timeout:=0.0'],
+                           'from -p feedback_timeout:=0.0'),
+    'bad-value-from-p': ('controller_node', None, ['-p', 'x.kp:=-1.0'], 'from -p x.kp:=-1.0'),
+    'servo-rate-0': ('controller_node', None, ['-p', 'servo_rate:=0.0'], 'servo_rate'),
+}
+
+
+@pytest.fixture(scope='module')
+def startup_runs(tmp_path_factory, node_env):
+    d = tmp_path_factory.mktemp('startup')
+    procs = {}
+    for case, (module, text, extra, _) in STARTUP_CASES.items():
+        node = module.split('_')[0]
+        f = params_dir() / f'{node}.yaml'
+        if text is not None:
+            f = d / f'{case}.yaml'
+            f.write_text(text)
+        args = [sys.executable, '-m', f'motion_ctrl.{module}', '--ros-args',
+                '--params-file', str(f)] + extra
+        procs[case] = (subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True, env=node_env), f)
+    runs = {}
+    for case, (proc, f) in procs.items():
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        runs[case] = (proc.returncode, out, err, f)
+    return runs
+
+
+@pytest.mark.parametrize('case', list(STARTUP_CASES))
+def test_startup_that_cannot_work_exits_2_with_one_line(startup_runs, case):
+    code, out, err, f = startup_runs[case]
+    expected = STARTUP_CASES[case][3]
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2, (code, err)
+    assert 'Traceback' not in err + out and len(lines) == 1, err
+    assert expected in lines[0], lines[0]
+    if STARTUP_CASES[case][1] is not None:
+        assert str(f) in lines[0], lines[0]
+    elif case == 'bad-value-from-p':
+        assert str(f) not in lines[0], lines[0]          # not blamed on the defaults file
