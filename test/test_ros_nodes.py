@@ -680,7 +680,8 @@ def test_malformed_targets_ignored_at_rest(slide, axis):
     mark = p.mark()
     for names, positions in MALFORMED_TARGETS:
         p.publish_target(positions, names)
-    assert wait_log(p, slide.controller_log, pattern, before + len(MALFORMED_TARGETS)), \
+    # One line for the three: refusals of one kind are logged once a second, with a count.
+    assert wait_log(p, slide.controller_log, pattern, before + 1), \
         slide.controller_log.text()[-2000:]
     assert not any(w & Status.MOVING for w in p.words_since(mark))
     p.assert_loop_running()
@@ -717,6 +718,86 @@ def test_target_outside_soft_limits_sets_limit(slide, axis):
     assert p.word & Status.ENABLED
     p.move_and_wait(far_target(p.position(), 0.002))    # a valid move clears LIMIT
     assert not p.word & Status.LIMIT
+
+
+# -- 3b. the axis's safety rules as a user sees them (issue 12) -----------------------------------
+def _publish_target_ahead(p: Probe, position: float, ahead: float) -> None:
+    msg = JointState()
+    t = p.get_clock().now().nanoseconds + round(ahead * 1e9)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
+    msg.name, msg.position = [p.axis], [float(position)]
+    p.pub_target.publish(msg)
+
+
+@pytest.mark.parametrize('command', ['stop', 'estop', 'abort'])
+def test_a_stop_cancels_a_scheduled_target(slide, axis, command):
+    """A target stamped 1 s ahead, then x/stop (x/estop, x/abort): at the stamp nothing moves
+    (the slide's true position stays), and the log says the target was cancelled and by what.
+    (It used to move 2 inches at the stamp, whatever came between.)"""
+    p = axis
+    start = p.load_position()
+    pattern = f'cancelled by {command.upper()}'
+    before = slide.controller_log.count(pattern)
+    _publish_target_ahead(p, far_target(p.position(), 0.05), 1.0)
+    p.spin_until(lambda: False, 0.1)
+    assert p.call(command).success
+    assert wait_log(p, slide.controller_log, pattern, before + 1), \
+        slide.controller_log.text()[-2000:]
+    mark = p.mark()
+    p.spin_until(lambda: False, 1.5)                     # past the stamp
+    assert not any(w & Status.MOVING for w in p.words_since(mark))
+    assert abs(p.load_position() - start) < 20 * COUNT
+
+
+def test_a_stop_does_not_lower_an_estop_over_dds(axis):
+    """With estop_deceleration 1 m/s² and stop_deceleration 0.25 m/s² (the ESTOP takes 100 ms
+    from max_velocity): x/estop during a long move, x/stop 20 ms later: refused with the
+    reason; the axis ends ESTOPPED, not STOPPED."""
+    p = axis
+    with changed(p, {'x.estop_deceleration': 1.0, 'x.stop_deceleration': 0.25}):
+        p.publish_target(far_target(p.position(), 0.2))
+        assert p.wait_status(lambda s: s & Status.MOVING)
+        p.spin_until(lambda: False, 0.2)
+        assert p.call('estop').success
+        p.spin_until(lambda: False, 0.02)
+        reply = p.call('stop')
+        assert not reply.success and 'ESTOP is in progress' in reply.message, reply.message
+        assert p.wait_status(lambda s: s & Status.MOTION_DONE and not s & Status.MOVING)
+        assert p.word & Status.ESTOPPED and not p.word & Status.STOPPED, repr(p.word)
+
+
+def test_limit_and_feedback_changes_refused_while_moving(slide, axis):
+    """While a 50 mm move runs, a soft limit it would cross and a feedback change are refused
+    naming the register and why; the move ends at its target within 3 counts."""
+    p = axis
+    here = p.position()
+    target = far_target(here, 0.05)
+    mark = p.publish_target(target)
+    assert p.wait_status(lambda s: s & Status.MOVING)
+    name, limit = (('x.soft_limit_max', here + 0.01) if target > here
+                   else ('x.soft_limit_min', here - 0.01))
+    result = p.set_params({name: limit})[0]
+    assert not result.successful and name in result.reason and 'moves' in result.reason, \
+        result.reason
+    result = p.set_params({'x.feedback': 'motor'})[0]
+    assert not result.successful and 'x.feedback' in result.reason, result.reason
+    assert p.spin_until(lambda: p.done_since(mark), 6.0), repr(p.word)
+    assert not p.word & Status.LIMIT
+    p.spin_for_messages(5)
+    assert abs(p.load_position() - target) <= 3 * COUNT
+
+
+def test_a_fatal_following_error_is_logged(slide, axis):
+    """FOLLOWING_ERROR_FATAL opens the loop and says so once, with the error and the limit."""
+    p = axis
+    pattern = 'FOLLOWING_ERROR_FATAL: following error'
+    before = slide.controller_log.count(pattern)
+    with changed(p, {'x.following_error_fatal': 2e-5, 'x.following_error_warning': 1e-5}):
+        p.publish_target(far_target(p.position(), 0.02))
+        assert p.wait_status(lambda s: s & Status.FOLLOWING_ERROR_FATAL), repr(p.word)
+        assert wait_log(p, slide.controller_log, pattern, before + 1)
+    assert slide.controller_log.count(pattern) == before + 1
+    assert 'following_error_fatal 0.02 mm' in slide.controller_log.text()
 
 
 def test_malformed_encoders_do_not_kill_the_controller(slide, axis):
