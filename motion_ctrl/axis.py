@@ -20,7 +20,8 @@ Motion commands and the status word (RMP semantics, see motion_ctrl.settling):
 
 * `move_to(target)`: point-to-point move; during a move it re-plans on the fly from the present
   commanded position, velocity and acceleration (no step in any of them).
-* `jog(velocity)`: velocity move, clamped to ±max_velocity; 0 decelerates to rest (MOTION_DONE).
+* `jog(velocity)`: velocity move, |velocity| <= max_velocity (above it refused); 0 decelerates to
+  rest (MOTION_DONE).
 * `stop()` / `stop('estop')`: decelerate at stop_deceleration / estop_deceleration; STOPPED /
   ESTOPPED + MOTION_DONE at rest. `abort()`: loop open at once, output 0 from this very moment,
   ENABLED cleared, ABORTED + MOTION_DONE.
@@ -354,7 +355,7 @@ class Axis:
             return False, f'{self.name}: {e}'
         self.target = None
         self.sampled.cancel()
-        # Settle against the velocity the profile runs (clamped to ±max_velocity).
+        # Settle against the velocity the profile runs.
         self.settling.start_velocity_move(p.target_velocity)
         self._sticky &= ~_LIMIT
         self._guard = (velocity > 0.0) - (velocity < 0.0)

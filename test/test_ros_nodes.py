@@ -24,6 +24,7 @@ rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from rclpy.serialization import serialize_message  # noqa: E402
 from rcl_interfaces.msg import ParameterType  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
@@ -798,6 +799,51 @@ def test_a_fatal_following_error_is_logged(slide, axis):
         assert wait_log(p, slide.controller_log, pattern, before + 1)
     assert slide.controller_log.count(pattern) == before + 1
     assert 'following_error_fatal 0.02 mm' in slide.controller_log.text()
+
+
+def _flood(p: Probe, msg, rate: float, seconds: float) -> int:
+    """Publish `msg` on target_position at `rate` for `seconds`, spinning the probe between."""
+    period, n = 1.0 / rate, 0
+    start = time.monotonic()
+    while time.monotonic() < start + seconds:
+        p.pub_target.publish(msg)
+        n += 1
+        due = start + n * period
+        while (left := due - time.monotonic()) > 0:
+            p.executor_.spin_once(timeout_sec=left)
+    return n
+
+
+def _rates_since(p: Probe, t0: float) -> list:
+    return [float(_loop_values(m)['rate_hz']) for t, m in p.diag if t >= t0]
+
+
+@pytest.mark.parametrize('case', ['nan-at-1kHz', '10000-names-at-100Hz'])
+def test_a_flood_of_bad_targets_costs_the_loop_under_1_percent(slide, axis, case):
+    """5 s of refused targets: the controller's achieved rate (/diagnostics, one value a
+    second) within 1 % of the 3 s before, and at most 10 log lines a second."""
+    p = axis
+    if case == 'nan-at-1kHz':
+        msg, rate = JointState(name=['x'], position=[math.nan]), 1000.0
+    else:
+        # (serialised once: the flooder itself must not load the 2-core machine)
+        msg = serialize_message(JointState(name=[f'j{i}' for i in range(10000)],
+                                           position=[0.0] * 10000))
+        rate = 100.0
+    t0 = time.monotonic()
+    p.spin_until(lambda: False, 3.0)
+    quiet = _rates_since(p, t0 + 0.5)
+    lines_before = len(slide.controller_log.text().splitlines())
+    t1 = time.monotonic()
+    sent = _flood(p, msg, rate, 5.0)
+    p.spin_until(lambda: False, 1.2)                      # the last window's /diagnostics
+    flooded = [r for t, r in ((t, float(_loop_values(m)['rate_hz'])) for t, m in p.diag)
+               if t1 + 1.0 <= t <= t1 + 5.5]
+    lines = len(slide.controller_log.text().splitlines()) - lines_before
+    assert sent >= 0.9 * rate * 5.0, sent
+    assert quiet and flooded, (quiet, flooded)
+    assert np.median(flooded) >= 0.99 * np.median(quiet), (quiet, flooded)
+    assert lines <= 10 * 6, slide.controller_log.text()[-3000:]
 
 
 def test_malformed_encoders_do_not_kill_the_controller(slide, axis):
