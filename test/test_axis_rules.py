@@ -153,3 +153,32 @@ def test_memory_flat_over_10000_status_word_changes():
     grown = tracemalloc.get_traced_memory()[0] - before
     tracemalloc.stop()
     assert grown < 50_000, grown
+
+
+# The README's precedence table, every pair: (state in progress, command) -> accepted?
+_COMMANDS = {
+    'move': lambda a: a.move_to(0.0),
+    'jog': lambda a: a.jog(-0.05),
+    'stop': lambda a: a.stop('stop'),
+    'estop': lambda a: a.stop('estop'),
+    'abort': lambda a: a.abort(),
+    'disable': lambda a: a.enable(False),
+}
+_TABLE = {
+    'moving': dict(move=True, jog=True, stop=True, estop=True, abort=True, disable=True),
+    'stop': dict(move=False, jog=False, stop=True, estop=True, abort=True, disable=True),
+    'estop': dict(move=False, jog=False, stop=False, estop=True, abort=True, disable=True),
+}
+
+
+@pytest.mark.parametrize('state, command', [(s, c) for s in _TABLE for c in _COMMANDS])
+def test_command_precedence_table(state, command):
+    h = _cruising()
+    if state != 'moving':
+        assert h.axis.stop(state)[0]
+        h.run(0.01)
+        assert h.axis.stopping
+    ok, reason = _COMMANDS[command](h.axis)
+    assert ok is _TABLE[state][command], reason
+    if not ok:
+        assert 'in progress' in reason, reason
