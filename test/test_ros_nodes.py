@@ -750,6 +750,23 @@ def test_a_stop_cancels_a_scheduled_target(slide, axis, command):
     assert abs(p.load_position() - start) < 20 * COUNT
 
 
+def test_a_newer_immediate_target_cancels_a_scheduled_one(slide, axis):
+    """A target stamped 1 s ahead, then an immediate 2 mm move: the slide ends at the immediate
+    target and stays there past the stamp; the log says why the scheduled one went."""
+    p = axis
+    pattern = 'cancelled by a newer immediate target'
+    before = slide.controller_log.count(pattern)
+    _publish_target_ahead(p, far_target(p.position(), 0.05), 1.0)
+    p.spin_until(lambda: False, 0.1)
+    target = far_target(p.position(), 0.002)
+    p.move_and_wait(target)
+    assert wait_log(p, slide.controller_log, pattern, before + 1)
+    mark = p.mark()
+    p.spin_until(lambda: False, 1.2)                     # past the stamp
+    assert not any(w & Status.MOVING for w in p.words_since(mark))
+    assert abs(p.load_position() - target) <= 3 * COUNT
+
+
 def test_a_stop_does_not_lower_an_estop_over_dds(axis):
     """With estop_deceleration 1 m/s² and stop_deceleration 0.25 m/s² (the ESTOP takes 100 ms
     from max_velocity): x/estop during a long move, x/stop 20 ms later: refused with the
