@@ -12,14 +12,33 @@ from msg_defs.topics import (
     amplifier_fault_topic, service_name,
     SERVICES, motor_joint, load_joint, split_joint,
 )
-from msg_defs.qos import SERVO_QOS, SERVO_READ_QOS, STATUS_QOS
-from msg_defs.joint_state import (joint_state, read_joint_state, MalformedMessage,
-                                 JointStateStream, Stream)
+
+# The ROS half (QoS profiles need rclpy, message helpers sensor_msgs) is imported when first
+# used (PEP 562), so that `msg_defs.status` and `msg_defs.topics`, which the servo core uses,
+# import on a machine without ROS.
+_LAZY = {
+    'SERVO_QOS': 'msg_defs.qos', 'SERVO_READ_QOS': 'msg_defs.qos', 'STATUS_QOS': 'msg_defs.qos',
+    'joint_state': 'msg_defs.joint_state', 'read_joint_state': 'msg_defs.joint_state',
+    'MalformedMessage': 'msg_defs.joint_state', 'JointStateStream': 'msg_defs.joint_state',
+    'Stream': 'msg_defs.joint_state',
+}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    import importlib
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     'Status', 'COMMAND', 'ENCODERS', 'JOINT_STATES', 'MOTOR_STATES', 'PLANT_STATES',
     'REFERENCE_STATES', 'AMPLIFIER_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY', 'DIAGNOSTICS',
-    'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint', 'load_joint', 'split_joint',
+    'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint',
+    'load_joint', 'split_joint',
     'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream', 'Stream',
 ]
