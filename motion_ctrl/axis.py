@@ -136,7 +136,7 @@ class Axis:
         self.settling = Settling()
         self.backlash = BacklashCompensation()
         self.sampled = SampledCorrection()
-        self.r = None
+        self.r: dict = {}            # the registers applied (set by configure below)
         self.enabled = False
         self.homed = False           # first feedback seen
         self._faults = 0             # FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT (int)
@@ -153,7 +153,7 @@ class Axis:
         self.following_error = 0.0
         self.correction = 0.0        # backlash + leadscrew correction on the motor command
         # Sampled dual loop (Galil): motor target = user target + offset.
-        self.target = None
+        self.target: float | None = None
         self.sampled_offset = 0.0
         self._guard = 0              # jog direction watched against its soft limit (+1/-1/0)
         # (time, Status word) on every change, when asked for (harness, tests, tools)
@@ -211,7 +211,7 @@ class Axis:
         self._max_jerk = r['max_jerk']
         self._stop_dec = r['stop_deceleration']
         self._estop_dec = r['estop_deceleration']
-        if old is not None and old['feedback'] != feedback and self.homed:
+        if old and old['feedback'] != feedback and self.homed:
             self._rehome_command()
 
     # -- derived -------------------------------------------------------------------------------
@@ -288,8 +288,8 @@ class Axis:
         if fb != self.r['feedback']:
             return (f'{self.name}.feedback: {fb} refused while the axis moves (a feedback change '
                     're-homes the command); stop first or wait for MOTION_DONE')
-        lo = changes.get('soft_limit_min', self._soft_lo)
-        hi = changes.get('soft_limit_max', self._soft_hi)
+        lo = changes['soft_limit_min'] if 'soft_limit_min' in changes else self._soft_lo
+        hi = changes['soft_limit_max'] if 'soft_limit_max' in changes else self._soft_hi
         if (lo, hi) == (self._soft_lo, self._soft_hi):
             return None
         a, b = self.profile.raw_extrema()
@@ -556,6 +556,7 @@ class Axis:
 
     def _correct_by(self, v2: float) -> None:
         """A sampled correction move: PR V2 on the motor, relative to its command."""
+        assert self.target is not None           # (corrections follow a position move)
         self.sampled_offset += v2
         self.profile.move_to(self.target + self.sampled_offset)
         self.settling.start_position_move(self.target + self.sampled_offset)
@@ -697,6 +698,7 @@ class Axis:
     def _sampled_step(self, dt, motor_counts, bits: int) -> int:
         """Galil's #CORRECT after each move; MOTION_DONE only when the load is there."""
         s = self.sampled
+        assert self.target is not None           # (called only while a target is set)
         load_error = self.target - self.load_pos
         v2 = None if dt <= 0.0 else s.update(
             dt, profile_done=self.profile.done, motor_settled=bool(bits & _DONE),

@@ -312,7 +312,8 @@ class BacklashCompensation:
 
     @property
     def motor_position(self):
-        """Motor-loop target = nominal + correction. Servo use only, never report it as commanded."""
+        """Motor-loop target = nominal + correction. Servo use only, never report it as
+        commanded."""
         if self._nominal is None:
             return None
         return apply_correction(self._nominal, self._correction)

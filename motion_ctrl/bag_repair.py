@@ -265,7 +265,8 @@ class RepairResult:
         return sum(self.counts.values())
 
     def summary(self, prog: str = 'record') -> str:
-        span = (self.end_ns - self.start_ns) * 1e-9 if self.total else 0.0
+        span = (self.end_ns - self.start_ns) * 1e-9 \
+            if self.end_ns is not None and self.start_ns is not None else 0.0
         lines = [f'{prog}: repaired {self.path}: {self.total} messages on {len(self.counts)} '
                  f'topics over {span:.1f} s']
         if self.complete:
@@ -337,7 +338,9 @@ def repair(bag_dir) -> RepairResult:
     writer = Writer(work / src.stem, version=Writer.VERSION_LATEST,
                     storage_plugin=StoragePlugin.MCAP)
     scan = Scan()
-    conns, counts, types = {}, {}, {}
+    conns: dict = {}
+    counts: dict[str, int] = {}
+    types: dict = {}
     start = end = None
     with open(src, 'rb') as f:
         try:

@@ -186,7 +186,8 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
             n.stop()
     if not loops:
         return {'error': 'no diagnostics'}
-    f = lambda k: statistics.median(float(d[k]) for d in loops if k in d)
+    def f(k):
+        return statistics.median(float(d[k]) for d in loops if k in d)
     ticks = f('rate_hz') * (t1 - t0)
     return {
         'rate_hz': f('rate_hz'), 'rate_pct': 100 * f('rate_hz') / rate,
@@ -227,7 +228,8 @@ def main(argv=None) -> int:
         rclpy.init()
     if 'floor' in sections:
         print('\n## floor (the machine: period jitter of loops that do nothing)\n')
-        print('| loop | rate [Hz] | jitter p50 [µs] | p99 [µs] | max [µs] |\n|---|---:|---:|---:|---:|')
+        print('| loop | rate [Hz] | jitter p50 [µs] | p99 [µs] | max [µs] |\n'
+              '|---|---:|---:|---:|---:|')
         for rate in (1000.0, 2000.0):
             for name, fn in (('time.sleep loop', bench_sleep_floor),
                              ('rclpy timer, EventsExecutor', bench_rclpy_floor)):
@@ -251,7 +253,8 @@ def main(argv=None) -> int:
                       f'{r["jitter_max_us"]:.0f} | {r["work_us"]:.0f} | '
                       f'{r["cpu_us_per_tick"]:.0f} ({r["cpu_pct"]:.0f} %) | '
                       f'{r["feedback_age_p50_us"]:.0f} / {r["feedback_age_p99_us"]:.0f} | '
-                      f'{r["command_transport_p50_us"]:.0f} / {r["command_transport_p99_us"]:.0f} |')
+                      f'{r["command_transport_p50_us"]:.0f} / '
+                      f'{r["command_transport_p99_us"]:.0f} |')
     if 'lockstep' in sections:
         try:
             from motion_ctrl.lockstep import bench_lockstep
@@ -259,8 +262,8 @@ def main(argv=None) -> int:
             print('\n## lockstep: not available')
         else:
             print('\n## lockstep\n')
-            r = bench_lockstep()
-            print(f'sim seconds per wall second: {r:.2f}')
+            speed = bench_lockstep()
+            print(f'sim seconds per wall second: {speed:.2f}')
     if ros:
         rclpy.try_shutdown()
     return 0

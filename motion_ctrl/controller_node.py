@@ -89,8 +89,9 @@ class ControllerNode(ros_params.RegisterNode):
         self.waited = {a: 0.0 for a in self.axis_names}
 
         qos = md.SERVO_QOS
-        stream = lambda topic: md.JointStateStream(self.create_publisher(JointState, topic, qos),
-                                                   self._publish_refused)
+        def stream(topic):
+            return md.JointStateStream(self.create_publisher(JointState, topic, qos),
+                                       self._publish_refused)
         self.pub_command = stream(md.COMMAND)
         self.pub_joint = stream(md.JOINT_STATES)
         self.pub_reference = stream(md.REFERENCE_STATES)

@@ -31,7 +31,7 @@ class FeedbackSync:
         self.window = window
         self.gain = gain
         self.phases: list[float] = []     # arrival - preceding tick, modulo the period
-        self.last_tick = None
+        self.last_tick: float | None = None
         self.restore = False
         self.shifts = 0                   # phase moves so far (reported in /diagnostics)
 

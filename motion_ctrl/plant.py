@@ -106,7 +106,8 @@ class SlidePlant:
     def resonance_hz(self) -> float:
         """Two-mass resonance in contact: sqrt(k (1/Mm + 1/Ml)) / 2π."""
         p = self.params
-        return math.sqrt(p['screw_stiffness'] * (1 / self.motor_mass + 1 / p['slide_mass'])) / TWO_PI
+        return math.sqrt(p['screw_stiffness'] * (1 / self.motor_mass + 1 / p['slide_mass'])) \
+            / TWO_PI
 
     def gap(self) -> float:
         """Nut position relative to the slide's positive-drive flank: 0 in positive contact,

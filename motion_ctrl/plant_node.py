@@ -56,8 +56,9 @@ class PlantNode(ros_params.RegisterNode):
             self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values[a])
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
-        stream = lambda topic: md.JointStateStream(
-            self.create_publisher(JointState, topic, md.SERVO_QOS), self._publish_refused)
+        def stream(topic):
+            return md.JointStateStream(
+                self.create_publisher(JointState, topic, md.SERVO_QOS), self._publish_refused)
         self.pub_enc = stream(md.ENCODERS)
         self.pub_truth = stream(md.PLANT_STATES)
         self.pub_amp = stream(md.AMPLIFIER_STATES)

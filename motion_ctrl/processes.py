@@ -65,7 +65,7 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        if self.log is not subprocess.DEVNULL:
+        if not isinstance(self.log, int):        # (subprocess.DEVNULL)
             self.log.close()
         return self.proc.returncode
 

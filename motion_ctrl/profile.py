@@ -69,14 +69,27 @@ class Profile:
       done, at_target, moving  (properties)
       duration         planned duration of the current ruckig segment (s)
     """
+    # (set by _reset, which __init__ calls)
+    raw_position: float
+    raw_velocity: float
+    raw_acceleration: float
+    position: float
+    velocity: float
+    acceleration: float
+    kind: str
+    duration: float
+    _t: float
+    _raw_done: bool
+    _settled: bool
+    _seg_velocity: float
 
     def __init__(self, position: float = 0.0):
         if not _finite(position):
             raise ValueError(f'initial position must be finite, got {position!r}')
         position = float(position)
 
-        self.max_velocity = None
-        self.max_acceleration = None
+        self.max_velocity: float | None = None
+        self.max_acceleration: float | None = None
         self.max_jerk = 0.0
         self.smoothing = 1.0
         self.servo_period = 0.001
@@ -89,12 +102,12 @@ class Profile:
         self._spare = Trajectory(1)   # planned into first, so a failure keeps _traj
 
         # Cache of the filter coefficients for the last dt (dt is usually constant).
-        self._f_dt = None
+        self._f_dt: float | None = None
         self._f_e = 0.0
         self._f_c = 0.0
 
-        self.target = None
-        self.target_velocity = None
+        self.target: float | None = None
+        self.target_velocity: float | None = None
         self._reset(position)
 
     # ------------------------------------------------------------------ config
@@ -161,6 +174,7 @@ class Profile:
             raise ValueError(f'jog velocity must be finite, got {velocity!r}')
         self._require_configured()
         vmax = self.max_velocity
+        assert vmax is not None                 # (configured)
         velocity = min(max(float(velocity), -vmax), vmax)
         self._plan(ControlInterface.Velocity, 0.0, velocity,
                    self.max_acceleration)
@@ -279,7 +293,7 @@ class Profile:
         if self.max_velocity is None:
             raise RuntimeError('Profile.configure() must be called before move_to()/jog()')
 
-    def _reset(self, position):
+    def _reset(self, position: float) -> None:
         self.raw_position = position
         self.raw_velocity = 0.0
         self.raw_acceleration = 0.0

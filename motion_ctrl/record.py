@@ -72,6 +72,7 @@ import signal
 import sys
 import threading
 import time
+from typing import Any
 
 from motion_ctrl import bag_repair
 
@@ -150,19 +151,19 @@ class Recorder:
         self.counts: dict[str, int] = {}      # fully-qualified topic -> messages written
         self.types: dict[str, str] = {}
         self.pending: list[str] = []          # requested topics whose type is not known yet
-        self.writer = None
-        self.executor = None
+        self.writer: Any = None               # rosbags Writer while recording
+        self.executor: Any = None
         self._events = False
-        self._subs = {}
-        self._conns = {}
-        self._timer = None
+        self._subs: dict[str, Any] = {}
+        self._conns: dict[str, Any] = {}
+        self._timer: Any = None
         self._flush_timer = None
         self.flushes = 0                      # chunks written by the periodic flush
         self._flush_due = 0.0                 # time.monotonic() of the next flush
-        self._thread = None
+        self._thread: Any = None
         self._stop = threading.Event()
-        self.started = None                   # time.monotonic() at open
-        self.stopped = None
+        self.started: float | None = None     # time.monotonic() at open
+        self.stopped: float | None = None
         self.errors: list[str] = []
 
     # -- setup ------------------------------------------------------------------------------
@@ -336,7 +337,8 @@ class Recorder:
 
     def _spin(self) -> None:
         import rclpy
-        ok = (lambda: rclpy.ok(context=self.context))
+        def ok():
+            return rclpy.ok(context=self.context)
         while not self._stop.is_set() and ok():
             self.spin_once(SPIN_TIMEOUT)
 

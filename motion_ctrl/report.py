@@ -50,6 +50,7 @@ import math
 import pathlib
 import struct
 import sys
+from typing import Any
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -140,7 +141,7 @@ def summarize_moves(t, command, actual, status, *, status_t=None, measured=None,
     edges = {b.name: rising_edges(st_t, words, b) for b in Status}
     # Sample period per sample (the time a saturated sample lasts).
     dt = np.diff(t, append=t[-1] + (np.median(np.diff(t)) if len(t) > 1 else 0.0))
-    moves = []
+    moves: list[MoveSummary] = []
     for i, start in enumerate(starts):
         end = starts[i + 1] if i + 1 < len(starts) else math.inf
         win = (t >= start) & (t < end)
@@ -176,7 +177,7 @@ def summarize_moves(t, command, actual, status, *, status_t=None, measured=None,
         events = {name: [float(x) for x in e[(e >= start) & (e < end)]]
                   for name, e in edges.items() if name in (
                       'AT_TARGET', 'IN_FINE_POSITION', 'MOTION_DONE') or
-                  Status[name] & FAULT_BITS}
+                  Status[str(name)] & FAULT_BITS}
         moves.append(MoveSummary(
             axis=axis, index=len(moves) + 1, start=float(start), start_position=float(start_pos),
             target=float(target),
@@ -308,8 +309,8 @@ def load_bag(path, axes=None, namespace: str | None = None) -> tuple[dict, dict]
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_KILTED))
         reader.open()
     except Exception as e:                     # AnyReaderError, yaml errors, corrupt files
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise ReportError(f'{path}: not a readable rosbag2 bag ({msg})') from None
+        why = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ReportError(f'{path}: not a readable rosbag2 bag ({why})') from None
     try:
         topics = {c.topic: c.msgtype for c in reader.connections}
         want = {}
@@ -333,13 +334,14 @@ def load_bag(path, axes=None, namespace: str | None = None) -> tuple[dict, dict]
             raise ReportError(f'{path}: lacks topics {", ".join(missing)} (has: {have})')
         conns = [c for c in reader.connections
                  if c.topic in want.values() or c.topic in status_topics]
-        series = {k: [] for k in want}   # name -> [(stamp_ns, bag_ns, names, pos, vel, eff)]
+        # name -> [(stamp_ns, bag_ns, names, pos, vel, eff)]
+        series: dict[str, list] = {k: [] for k in want}
         by_topic = {v: k for k, v in want.items() if v}
-        status_raw = {a: [] for a in status_topics.values()}
+        status_raw: dict[str, list] = {a: [] for a in status_topics.values()}
         try:
             for conn, bag_ns, raw in reader.messages(connections=conns):
                 if conn.topic in status_topics:
-                    msg = reader.deserialize(raw, conn.msgtype)
+                    msg: Any = reader.deserialize(raw, conn.msgtype)
                     status_raw[status_topics[conn.topic]].append((bag_ns, int(msg.data)))
                     continue
                 try:
@@ -563,7 +565,7 @@ def draw_axis(d: AxisData, moves, png, *, counts_per_m=LOAD_COUNTS_PER_M,
             colour, ls = styles[name]
             for a in ax:
                 a.axvline(x, color=colour, ls=ls, lw=0.9, alpha=0.8)
-        at = {}                     # fault edges at one tick share one line and label
+        at: dict = {}               # fault edges at one tick share one line and label
         for name in m.faults:
             for x in m.events.get(name, []):
                 at.setdefault(x, []).append(name)

@@ -7,6 +7,7 @@ range).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
@@ -143,6 +144,13 @@ class RegisterNode(Node):
     `self.consistency` (values -> reasons) and implement `current(axis)` (that axis' values
     including anything accepted but not applied yet).
     """
+    axis_names: list[str]
+    globals_table: dict
+    axis_table: dict
+    consistency: Callable[[dict], list]
+
+    def current(self, axis: str) -> dict:
+        raise NotImplementedError
 
     def set_parameters_atomically(self, parameter_list):
         """The parameter services (`ros2 param set`, `ros2 param load`, set_parameters,
@@ -214,7 +222,7 @@ class RegisterNode(Node):
 
     def axis_changes(self, params) -> dict:
         """{axis: {register: value}} of the per-axis parameters among `params`."""
-        changes = {}
+        changes: dict[str, dict] = {}
         for p in params:
             axis, reg = self.split(p.name)
             if axis is not None:

@@ -88,6 +88,7 @@ def run_configuration(name: str, registers: dict, plant: dict | None = None,
     cpm = h.plant.load_counts_per_m
     h.move(FIRST, TIMEOUT)
     first = (h.plant.x_l - FIRST) * cpm
+    assert h.trace is not None
     start = len(h.trace.t)
     t_done = h.move(SECOND, TIMEOUT)
     if t_done is not None:
@@ -118,7 +119,8 @@ def format_table(rows) -> str:
     lines = [head]
     for r in rows:
         done = f'{r.done_ms:.0f}' if r.done_ms is not None else 'never'
-        lines.append(f'| {r.name} | {r.first_error_counts:+.2f} | {r.error_counts:+.2f} | {done} | {r.peak_fe_counts:.1f} | '
+        lines.append(f'| {r.name} | {r.first_error_counts:+.2f} | {r.error_counts:+.2f} | '
+                     f'{done} | {r.peak_fe_counts:.1f} | '
                      f'{r.corrections} | {r.note} |')
     return '\n'.join(lines)
 

@@ -82,7 +82,7 @@ _STOPPED = int(Status.STOPPED)
 _ESTOPPED = int(Status.ESTOPPED)
 _ABORTED = int(Status.ABORTED)
 
-_STATUS_MEMO = {}
+_STATUS_MEMO: dict[int, Status] = {}
 
 
 def status_word(value: int) -> Status:

@@ -183,18 +183,20 @@ def main(argv=None) -> int:
     if a.record:
         print(f'soak: recorder exit code {recorder.returncode if recorder else None}')
     ok = (not soak.faults and soak.within_1_count == soak.moves and not visitors.failed
-          and 'FEEDBACK_FAULT' not in log and (not a.record or recorder.returncode == 0))
+          and 'FEEDBACK_FAULT' not in log
+          and (not a.record or (recorder is not None and recorder.returncode == 0)))
     return 0 if ok else 1
 
 
 def _record_between(recorder, visitors: Visitors, bag):
     """`record` started when a third of the visitors came, stopped (SIGINT) at two thirds."""
     import signal
-    if recorder is None and visitors.started >= visitors.count // 3:
+    count = visitors.count or 0                  # (the soak's visitors run to a count)
+    if recorder is None and visitors.started >= count // 3:
         return subprocess.Popen([sys.executable, '-m', 'motion_ctrl.record', '-o', str(bag)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     if recorder is not None and recorder.poll() is None \
-            and visitors.started >= 2 * visitors.count // 3:
+            and visitors.started >= 2 * count // 3:
         recorder.send_signal(signal.SIGINT)
         recorder.wait(30.0)
     return recorder

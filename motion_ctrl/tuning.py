@@ -72,6 +72,7 @@ def kd_stable(kd: float, plant=None) -> bool:
     h = _harness(dict(kp=0.0, ki=0.0, kd=kd, kvff=0.0, kaff=0.0), plant)
     h.plant.v_m = h.plant.v_l = 0.005           # a kick: 5 mm/s
     h.run(0.4)
+    assert h.trace is not None
     # Unstable: the motor still oscillating 0.2 s later by more than the dither of a count or
     # two that velocity quantisation alone causes.
     motor = np.array(h.trace.motor[200:]) * h.plant.motor_counts_per_m
@@ -86,6 +87,7 @@ def step_response(gains: dict, plant=None, seconds=0.8):
     h.run(0.05)
     h.axis.move_to(STEP)
     h.run(seconds)
+    assert h.trace is not None
     load = np.array(h.trace.load[50:])
     overshoot = max(0.0, (load.max() - STEP) / STEP)
     motor = np.array(h.trace.motor[-200:]) * h.plant.motor_counts_per_m

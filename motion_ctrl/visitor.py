@@ -50,7 +50,8 @@ def main(argv=None) -> int:
         if future is None and params.services_are_ready():
             future = params.get_parameters([f'{a.axis}.kp'])
         if future is not None and future.done() and value is None:
-            value = future.result().values[0].double_value
+            result = future.result()
+            value = result.values[0].double_value if result is not None else None
         executor.spin_once(timeout_sec=0.01)
     print(f'visitor: {a.axis}.kp={value} joint_states={got["joint_states"]} '
           f'status={got["status"]}', flush=True)

@@ -226,7 +226,8 @@ def _slide(logs, watchdog, context=None):
     plant, controller = start_slide(watchdog, log_dir=logs)
     client = SlideClient(name='record_test_client', context=context)
     try:
-        assert client.wait_ready(30.0), f'slide did not come up ({client.not_ready()}); logs in {logs}'
+        assert client.wait_ready(30.0), \
+            f'slide did not come up ({client.not_ready()}); logs in {logs}'
         yield client
     finally:
         client.destroy_node()
@@ -558,7 +559,8 @@ def test_sigkill_then_repair_keeps_all_but_the_last_second(own_slide, tmp_path):
                          f'checker missed {checker_missed}): {"; ".join(problems)}; {detail}')
         pytest.fail(f'{"; ".join(problems)}; {detail}')
     print(f'\n{detail}; repaired bag holds {total} messages, {len(window)} ticks in the '
-          f'{span:.2f} s checked (controller at {len(window) / span:.0f} Hz); moves {[round(m, 2) if m else m for m in moves]} s\n'
+          f'{span:.2f} s checked (controller at {len(window) / span:.0f} Hz); '
+          f'moves {[round(m, 2) if m else m for m in moves]} s\n'
           + p.stdout)
 
 

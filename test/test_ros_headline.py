@@ -16,7 +16,8 @@ def slide(rclpy_session, tmp_path, request, slow_watchdog):
     plant, controller = start_slide(slow_watchdog | {'x.feedback': feedback}, log_dir=tmp_path)
     client = SlideClient(name=f'headline_{feedback}')
     try:
-        assert client.wait_ready(30.0), f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
+        assert client.wait_ready(30.0), \
+            f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
         yield client
     finally:
         client.destroy_node()

@@ -27,7 +27,8 @@ def three_axes(rclpy_session, tmp_path, node_env, slow_watchdog):
                              tmp_path / 'controller.log', env=node_env)
     client = SlideClient(axes=('x', 'y', 'z'), name='three_axes_client')
     try:
-        assert client.wait_ready(30.0), f'plant + controller with three axes did not come up: {client.not_ready()}'
+        assert client.wait_ready(30.0), \
+            f'plant + controller with three axes did not come up: {client.not_ready()}'
         yield client
     finally:
         client.destroy_node()

@@ -172,7 +172,8 @@ class Probe(SlideClient):
         mark = self.publish_target(target)
         assert self.spin_until(lambda: self.done_since(mark), timeout), (
             f'move to {target} m not done in {timeout} s; status words (s after the target '
-            f'was sent) {[(round(t - t0, 3), hex(w)) for t, w in self.status_log[self.axis][mark:]]}'
+            'was sent) '
+            f'{[(round(t - t0, 3), hex(w)) for t, w in self.status_log[self.axis][mark:]]}'
             f'; {self.loop_note()}')
 
     def position(self) -> float:
