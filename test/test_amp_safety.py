@@ -36,6 +36,8 @@ except ImportError:
 
 COUNT = INCH / 10000
 COMMAND_TIMEOUT = PLANT_AXIS['command_timeout'].default
+PLANT_PERIOD = 1e-3            # s: the plant's cycle (publish_rate 1 kHz)
+TRANSPORT = 2e-3               # s: a command's age on arrival over DDS, at most (README)
 MAX_VELOCITY = 0.1             # the controller's default max_velocity [m/s]
 LONG_MOVE = 0.3                # m: 3 s at max_velocity, time enough to kill it in the middle
 
@@ -161,9 +163,15 @@ def _check(m: dict) -> None:
     print(', '.join(f'{k} {v * 1e3:.2f} {"mm" if k == "travel" else "ms"}'
                     if k != 'velocity_at_stop' else f'{k} {v:.4f} m/s' for k, v in m.items()))
     assert m['velocity_at_stop'] >= 0.98 * MAX_VELOCITY, m
-    # 0 V within the watchdog: the plant checks it once per 1 ms cycle; 3 ms for the machine.
-    assert 0.0 <= m['zero_after_last_command'] <= COMMAND_TIMEOUT + 0.003, m
-    assert 0.0 <= m['zero_after_stop'] <= COMMAND_TIMEOUT + 0.003, m
+    # 0 V within the watchdog, which counts command_timeout in plant time from the command's
+    # arrival and checks it once per 1 ms plant cycle. The stamps here are the controller's
+    # (the command's) and the plant's (its output): between them lie the command's transport
+    # (0-2 ms over DDS, README), the cycle that sees the timeout, and one late plant cycle,
+    # which the watchdog counts as at most two periods (plant.py) while more wall time passed.
+    # (With 3 ms for all that, a run here came 0.05 ms over.)
+    allowance = COMMAND_TIMEOUT + 2 * PLANT_PERIOD + TRANSPORT
+    assert 0.0 <= m['zero_after_last_command'] <= allowance, m
+    assert 0.0 <= m['zero_after_stop'] <= allowance, m
     assert 0.0 <= m['travel'] <= 0.005, m
     assert m['rest_after_stop'] <= 0.5, m
 
