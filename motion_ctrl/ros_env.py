@@ -25,6 +25,7 @@ def private_domain() -> int:
 
 
 _spare_domains = itertools.count()
+_spare_base: int | None = None
 
 
 def spare_domain() -> int:
@@ -33,8 +34,10 @@ def spare_domain() -> int:
     participant leaves its shared-memory port behind, and a participant that later gets the
     same port number on that domain inherits it with the dead listener's unread slots (sends
     to it were seen dropped as "port full": service calls to the new node went unanswered)."""
-    base = int(os.environ.get('ROS_DOMAIN_ID', '1'))
-    return (base + 25 + next(_spare_domains)) % 101 + 1
+    global _spare_base
+    if _spare_base is None:          # the process's own domain, as it was at the first call
+        _spare_base = int(os.environ.get('ROS_DOMAIN_ID', '1'))
+    return (_spare_base + 25 + next(_spare_domains)) % 101 + 1
 
 
 def executor(context=None):

@@ -36,13 +36,28 @@ def no_zombie_shm():
     ros_env.clean_zombie_shm()
 
 
-@pytest.fixture(scope='session')
-def rclpy_session():
-    """rclpy initialised once for the whole run in this (test) process; skips without rclpy."""
+@pytest.fixture(scope='module', autouse=True)
+def module_domain():
+    """Every test module on a ROS domain of its own (ros_env.spare_domain), set in the
+    environment its node processes inherit: what one module's processes leave in shared memory
+    (a killed or crashed participant's port, whose dead listener a later participant with the
+    same port number inherits) cannot reach the next module's nodes. Yields the domain."""
+    from motion_ctrl import ros_env
+    saved = os.environ['ROS_DOMAIN_ID']
+    domain = ros_env.spare_domain()
+    os.environ['ROS_DOMAIN_ID'] = str(domain)
+    yield domain
+    os.environ['ROS_DOMAIN_ID'] = saved
+
+
+@pytest.fixture(scope='module')
+def rclpy_session(module_domain):
+    """rclpy (the default context) initialised for the module in this (test) process, on the
+    module's domain; skips without rclpy."""
     rclpy = pytest.importorskip('rclpy')
     owned = not rclpy.ok()
     if owned:
-        rclpy.init()
+        rclpy.init(domain_id=module_domain)
     yield rclpy
     if owned:
         rclpy.try_shutdown()
@@ -78,8 +93,8 @@ def slow_watchdog():
     return {'feedback_timeout': 1.5}
 
 
-@pytest.fixture(scope='session')
-def node_env():
+@pytest.fixture(scope='module')
+def node_env(module_domain):
     """Environment for node processes tests start: this run's ROS domain and discovery range
     (set above) and the source tree first on the path, like this process."""
     env = os.environ.copy()
