@@ -228,6 +228,11 @@ class ControllerNode(ros_params.RegisterNode):
         self.scheduled = [x for x in self.scheduled if x[1] not in axes]
 
     def _move(self, targets: dict) -> None:
+        # Commands take effect in the order they came: a set accepted before this target
+        # applies first (a feedback change applied at the next tick would re-home the command
+        # and drop the move that had started meanwhile, without a word).
+        if self.staged:
+            self._apply_staged()
         for a, target in targets.items():
             ok, reason = self.axes[a].move_to(target)
             if not ok:
@@ -236,6 +241,8 @@ class ControllerNode(ros_params.RegisterNode):
     def _on_target_velocity(self, msg: JointState) -> None:
         jogs = self._targets(msg, 'velocity', 'target_velocity')
         self._unschedule(jogs, 'a jog')
+        if jogs and self.staged:
+            self._apply_staged()                # (in order: see _move)
         for a, v in jogs.items():
             ok, reason = self.axes[a].jog(v)
             if not ok:
