@@ -436,19 +436,20 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
             x0.append(math.log(2 * z0 / (TWO_PI * fa0)))
             lbi.append(math.log(1e-9))
             ubi.append(math.log(1.0))
-        x0 = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)
-        sol = optimize.least_squares(residuals, x0, bounds=(lbi, ubi), x_scale=1.0,
+        start = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)
+        sol = optimize.least_squares(residuals, start, bounds=(lbi, ubi), x_scale=1.0,
                                      method='trf')
         if best is None or sol.cost < best.cost:
             best = sol
+    assert best is not None
     mdl = unpack(best.x)
     # Unweighted residuals over the points used, for the report.
-    mags, phs = [], []
+    mag_parts, ph_parts = [], []
     for name, f, g, _ in data:
         e = np.log(mdl.response(f, output=name, sample_period=T, delay_ticks=delay_ticks) / g)
-        mags.append(e.real * 20.0 / math.log(10.0))
-        phs.append(np.degrees(e.imag))
-    mags, phs = np.concatenate(mags), np.concatenate(phs)
+        mag_parts.append(e.real * 20.0 / math.log(10.0))
+        ph_parts.append(np.degrees(e.imag))
+    mags, phs = np.concatenate(mag_parts), np.concatenate(ph_parts)
     K = mdl.accel_per_volt
     rho = (mdl.resonance_hz / mdl.antiresonance_hz) ** 2 - 1.0
     inertia = 1.0 / K
@@ -563,12 +564,13 @@ def margins(freq, loop, *, delay=0.0) -> Margins:
     down = [(-g, fp) for fp, g in pcs if g <= 0.0]
     gm, fpc = min(up) if up else (math.inf, None)
     lgm = min(down)[0] if down else math.inf
+    crossover: float | None
     if gcs:
-        pm, fc = min((pm, fc) for fc, pm in gcs)
-        dm = min(max(p, 0.0) / 360.0 / fc for fc, p in gcs)
+        pm, crossover = min((p, c) for c, p in gcs)
+        dm = min(max(p, 0.0) / 360.0 / c for c, p in gcs)
     else:
-        pm, fc, dm = math.inf, None, math.inf
-    return Margins(float(gm), fpc, float(pm), fc, float(dm), float(lgm),
+        pm, crossover, dm = math.inf, None, math.inf
+    return Margins(float(gm), fpc, float(pm), crossover, float(dm), float(lgm),
                    [float(g[0]) for g in gcs], [float(p[0]) for p in pcs])
 
 

@@ -34,7 +34,8 @@ def test_log_chirp_is_tick_exact_starts_at_zero_and_stays_in_band():
     f_mid = 5.0 * (300.0 / 5.0) ** 0.5
     crossings = [np.count_nonzero(np.diff(np.signbit(h))) for h in half]
     # cycles in each half: ∫ f dt = (f_end − f_start) · T_half / ln(f_end / f_start)
-    expect = [(f_mid - 5.0) * 2.0 / math.log(f_mid / 5.0), (300.0 - f_mid) * 2.0 / math.log(300.0 / f_mid)]
+    expect = [(f_mid - 5.0) * 2.0 / math.log(f_mid / 5.0),
+              (300.0 - f_mid) * 2.0 / math.log(300.0 / f_mid)]
     for n, e in zip(crossings, expect):
         assert n / 2 == pytest.approx(e, rel=0.02)
 
