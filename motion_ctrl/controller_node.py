@@ -1,9 +1,10 @@
 """The `controller` node: a timer-driven servo loop for one or more axes.
 
 A thin shell: parameters, topics, services and the timer are translated into calls on
-`motion_ctrl.axis.Axis`. Parameter sets are validated in the on-set callback (a refusal names the
-parameter and changes nothing) and staged in the post-set callback; the next servo tick applies
-everything staged at once, so several parameters set in one call take effect together.
+`motion_ctrl.servo_loop.ServoLoop` (the tick: register sets, scheduled targets, feedback watchdog,
+each `Axis`) and its axes. Parameter sets are validated in the on-set callback (a refusal names
+the parameter and changes nothing) and staged in the post-set callback; the next servo tick
+applies everything staged at once, so several parameters set in one call take effect together.
 Parameter services and the timer share the node's default callback group: they never run
 concurrently, no lock is needed. In real time the timer's phase is moved, once, to just after the
 encoder samples arrive (`motion_ctrl.feedback_sync`), so a sample does not wait up to a period.
@@ -33,9 +34,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 import msg_defs as md
 from motion_ctrl import ros_env, ros_params
 from motion_ctrl.axis import Axis
-from motion_ctrl.diagnostics import LoopStats, diagnostics_message
+from motion_ctrl.diagnostics import diagnostics_message
 from motion_ctrl.feedback_sync import FeedbackSync
-from msg_defs.status import Status
+from motion_ctrl.servo_loop import ServoLoop
 from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
                                    CONTROLLER_GLOBAL, consistency)
 
@@ -47,9 +48,6 @@ MAX_TARGET_BYTES = 65536
 MAX_TARGET_NAMES = 256
 REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second, with a count
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
-# s of encoder samples before the loop closes at start-up (real time): while DDS discovery
-# settles, a stream can pause for longer than feedback_timeout right after its first sample.
-STREAM_SETTLE = 0.5
 # s: the longest a stopping controller waits for its last command (0 V) to be acknowledged
 SHUTDOWN_ACK_WAIT = 0.2
 
@@ -74,19 +72,12 @@ class ControllerNode(ros_params.RegisterNode):
         self.refuse_unknown_overrides()
         for name, values in self.values.items():
             self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see run()
-        self.staged: dict[str, dict] = {}
+        self.sim_time = self.get_parameter('use_sim_time').value
+        self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
+                              self.sim_time)
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._stage)
-
-        # Encoder state per axis: latest counts, their stamp, when they arrived.
-        self.enc = {a: None for a in self.axis_names}      # (motor, load, stamp_s)
         self.joints = [(a, md.motor_joint(a), md.load_joint(a)) for a in self.axis_names]
-        self.enc_used = {a: None for a in self.axis_names}
-        self.first_sample = {}                             # axis -> stamp of its first sample
-        # Servo time waited for a new sample, counting a late tick as at most two periods: a
-        # controller that was itself held up (its queued samples not yet read) must not blame
-        # the encoders; a plant that stopped sending is still caught after feedback_timeout.
-        self.waited = {a: 0.0 for a in self.axis_names}
 
         qos = md.SERVO_QOS
         def stream(topic):
@@ -109,14 +100,10 @@ class ControllerNode(ros_params.RegisterNode):
         for a in self.axis_names:
             self._make_services(a)
 
-        self.last_status = {a: None for a in self.axis_names}
+        self.last_status: dict[str, int | None] = {a: None for a in self.axis_names}
         self.last_status_time = {a: -math.inf for a in self.axis_names}
-        self.stats = LoopStats(self.period)
-        self.last_tick = None
-        self.scheduled = []          # (stamp [s], axis, target, command epoch) stamped ahead
-        self.prev_faults = {a: 0 for a in self.axis_names}
+        self.stats = self.loop.stats
         self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
-        self.sim_time = self.get_parameter('use_sim_time').value
         # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
         self.timer = None if self.sim_time else self.create_timer(self.period,
                                                                   lambda: self._tick())
@@ -128,7 +115,7 @@ class ControllerNode(ros_params.RegisterNode):
 
     # -- parameters -----------------------------------------------------------------------------
     def current(self, axis: str) -> dict:
-        return self.values[axis] | self.staged.get(axis, {})
+        return self.loop.current(axis)
 
     def live_refusal(self, axis: str, changes: dict):
         return self.axes[axis].live_change_refusal(changes)
@@ -136,19 +123,17 @@ class ControllerNode(ros_params.RegisterNode):
     def _stage(self, params) -> None:
         for p in params:
             if p.name == 'feedback_timeout':
-                self.feedback_timeout = p.value
+                self.loop.feedback_timeout = p.value
         for axis, changes in self.axis_changes(params).items():
-            self.staged.setdefault(axis, {}).update(changes)
+            self.loop.stage(axis, changes)
 
-    def _apply_staged(self) -> None:
-        for axis, changes in self.staged.items():
-            merged = self.values[axis] | changes
-            try:
-                self.axes[axis].configure(merged)
-                self.values[axis] = merged
-            except ValueError as e:      # validated already; a core refusal is still logged
-                self.get_logger().error(f'parameters not applied: {e}')
-        self.staged.clear()
+    def _log(self, lines) -> None:
+        logger = self.get_logger()
+        for level, text in lines:         # (rclpy: one severity per call site)
+            if level == 'error':
+                logger.error(text)
+            else:
+                logger.warning(text)
 
     # -- inputs ---------------------------------------------------------------------------------
     def _on_encoders(self, msg: JointState) -> None:
@@ -158,16 +143,16 @@ class ControllerNode(ros_params.RegisterNode):
             self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        enc = self.enc
         for a, motor, load in self.joints:
             m, l = counts.get(motor), counts.get(load)
             if m is not None and l is not None:
-                enc[a] = (int(m), int(l), stamp)
+                self.loop.feedback(a, int(m), int(l), stamp)
         if self.sync is not None:
             self.sync.arrived(time.perf_counter())     # ready for a tick from now on
-        if self.sim_time and (self.last_tick is None or stamp > self.last_tick):
+        last = self.loop.last_tick
+        if self.sim_time and (last is None or stamp > last):
             self._tick(msg.header.stamp)
-        elif self.sim_time and stamp == self.last_tick and self.pub_command.names:
+        elif self.sim_time and stamp == last and self.pub_command.names:
             # The lockstep plant sent this sample again: our answer did not reach it.
             self.pub_command.send(self.pub_command.msg)
 
@@ -214,35 +199,18 @@ class ControllerNode(ros_params.RegisterNode):
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         ahead = stamp - self.get_clock().now().nanoseconds * 1e-9
         if targets and 0.0 < ahead <= MAX_SCHEDULE:
-            self.scheduled += [(stamp, a, t, self.axes[a].command_epoch)
-                               for a, t in targets.items()]
+            for a, t in targets.items():
+                self.loop.schedule(stamp, a, t)
             return
-        self._unschedule(targets, 'a newer immediate target')
-        self._move(targets)
-
-    def _unschedule(self, axes, why: str) -> None:
-        """Drop the scheduled targets of `axes`, saying so."""
-        for stamp, a, t, _ in [x for x in self.scheduled if x[1] in axes]:
-            self.get_logger().warning(f'{a}: scheduled target {t:g} m (stamped {stamp:.3f} s) '
-                                      f'cancelled by {why}')
-        self.scheduled = [x for x in self.scheduled if x[1] not in axes]
-
-    def _move(self, targets: dict) -> None:
-        # Commands take effect in the order they came: a set accepted before this target
-        # applies first (a feedback change applied at the next tick would re-home the command
-        # and drop the move that had started meanwhile, without a word).
-        if self.staged:
-            self._apply_staged()
-        for a, target in targets.items():
-            ok, reason = self.axes[a].move_to(target)
-            if not ok:
-                self._refused(f'target:{a}', f'target_position refused: {reason}')
+        self._log(self.loop.unschedule(targets, 'a newer immediate target'))
+        for a, reason in self.loop.move(targets):
+            self._refused(f'target:{a}', f'target_position refused: {reason}')
 
     def _on_target_velocity(self, msg: JointState) -> None:
         jogs = self._targets(msg, 'velocity', 'target_velocity')
-        self._unschedule(jogs, 'a jog')
-        if jogs and self.staged:
-            self._apply_staged()                # (in order: see _move)
+        self._log(self.loop.unschedule(jogs, 'a jog'))
+        if jogs and self.loop.staged:
+            self._log(self.loop.apply_staged())   # (in order: see ServoLoop.move)
         for a, v in jogs.items():
             ok, reason = self.axes[a].jog(v)
             if not ok:
@@ -280,65 +248,11 @@ class ControllerNode(ros_params.RegisterNode):
         else:
             stamp = stamp_msg
         now = stamp.sec + stamp.nanosec * 1e-9
-        dt = self.period if self.last_tick is None else now - self.last_tick
-        self.last_tick = now
-        if dt <= 0.0:
+        tick = self.loop.tick(now)
+        if tick is None:
             return                       # sim time paused or stepped back
-        self.stats.period(dt)
-        if self.staged:
-            self._apply_staged()
-        if self.scheduled:
-            void = {a for _, a, _, epoch in self.scheduled
-                    if epoch != self.axes[a].command_epoch}
-            for a in void:
-                self._unschedule({a}, self.axes[a].cancelled_by)
-            due = [x for x in self.scheduled if x[0] <= now + 1e-9]
-            if due:
-                self.scheduled = [x for x in self.scheduled if x[0] > now + 1e-9]
-                self._move({a: t for _, a, t, _ in due})
-        names, outputs = [], []
-        age_recorded = False         # (one encoder message carries every axis)
-        for a, axis in self.axes.items():
-            enc = self.enc[a]
-            if enc is None:
-                continue                 # no feedback yet: the loop stays open, nothing sent
-            motor, load, s_stamp = enc
-            if s_stamp != self.enc_used[a]:
-                self.waited[a] = 0.0
-            else:
-                self.waited[a] += min(dt, 2 * self.period)
-                if self.waited[a] > self.stats.feedback_wait_max:
-                    self.stats.feedback_wait_max = self.waited[a]
-            stale = self.waited[a] > self.feedback_timeout
-            if not axis.homed:
-                first = self.first_sample.setdefault(a, s_stamp)
-                if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
-                    continue             # the encoder stream is not established yet: wait
-            if stale:
-                if not axis.faults & Status.FEEDBACK_FAULT:
-                    opened = 'loop opened' if axis.enabled else 'the loop was open'
-                    self.get_logger().error(
-                        f'{a}: FEEDBACK_FAULT: no new encoder sample for '
-                        f'{self.waited[a] * 1e3:.0f} ms of servo time (the last is stamped '
-                        f'{(now - s_stamp) * 1e3:.0f} ms ago); {opened}, call {a}/reset')
-                axis.feedback_fault()
-                out = axis.update(dt, motor, load, sample_dt=0.0)
-            else:
-                prev = self.enc_used[a]
-                sample_dt = None if prev is None else s_stamp - prev
-                self.enc_used[a] = s_stamp
-                age = min(max(now - s_stamp, 0.0), 3 * self.period)
-                if not age_recorded:
-                    age_recorded = True
-                    self.stats.feedback_age(age)
-                out = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
-                if axis.faults & Status.FOLLOWING_ERROR_FATAL and \
-                        not self.prev_faults[a] & Status.FOLLOWING_ERROR_FATAL:
-                    self.get_logger().error(f'{a}: {axis.fault_reason}; loop opened, call '
-                                            f'{a}/reset')
-            self.prev_faults[a] = int(axis.faults)
-            names.append(a)
-            outputs.append(out)
+        self._log(tick.log)
+        names, outputs = tick.names, tick.outputs
         if names:
             self.pub_command.publish(stamp, names, effort=outputs)
             ax = [self.axes[a] for a in names]

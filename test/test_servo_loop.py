@@ -1,0 +1,101 @@
+"""ServoLoop, the controller's whole tick, without ROS and in microseconds: the feedback
+watchdog, the loop-closing gate, scheduled targets and register sets applied together."""
+import pytest
+
+from motion_ctrl.axis import Axis
+from motion_ctrl.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.servo_loop import STREAM_SETTLE, ServoLoop
+from msg_defs.status import Status as S
+
+T = 1e-3
+TIMEOUT = 0.02
+
+
+def _loop(sim_time=False, **registers) -> ServoLoop:
+    values = axis_defaults(AXIS_REGISTERS) | registers
+    return ServoLoop({'x': Axis('x', values, T)}, {'x': values}, T, TIMEOUT, sim_time)
+
+
+def _run(loop, t0, t1, samples=True):
+    """Ticks from t0 to t1 [s], a fresh sample (at rest at 0) before each when `samples`."""
+    ticks = []
+    for k in range(round((t1 - t0) / T)):
+        now = t0 + k * T
+        if samples:
+            loop.feedback('x', 0, 0, now)
+        ticks.append(loop.tick(now))
+    return ticks
+
+
+def test_the_loop_closes_after_the_stream_has_run_its_settling_time():
+    """Real time: no output and the loop open until the samples span STREAM_SETTLE (PMAC
+    Ixx80 = 1 once the encoders are there); sim time: at the first sample."""
+    loop = _loop()
+    ticks = _run(loop, 0.0, STREAM_SETTLE - 0.01)
+    assert all(t.names == [] for t in ticks) and not loop.axes['x'].enabled
+    _run(loop, STREAM_SETTLE - 0.01, STREAM_SETTLE + 0.01)
+    assert loop.axes['x'].enabled
+    sim = _loop(sim_time=True)
+    sim.feedback('x', 0, 0, 0.0)
+    assert sim.tick(0.0).names == ['x'] and sim.axes['x'].enabled
+
+
+def test_feedback_fault_after_the_timeout_logged_once():
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    word = loop.axes['x'].status
+    assert word & S.ENABLED
+    t = 1.0
+    lines = []
+    while not loop.axes['x'].faults:
+        tick = loop.tick(t)
+        lines += tick.log
+        t += T
+        assert t < 1.1
+    waited = t - 1.0
+    assert TIMEOUT < waited <= TIMEOUT + 2 * T                  # 20–22 ms without samples
+    assert len(lines) == 1 and 'FEEDBACK_FAULT' in lines[0][1] and 'loop opened' in lines[0][1]
+    assert not loop.axes['x'].enabled
+    lines = [x for tick in _run(loop, t, t + 0.1, samples=False) for x in tick.log]
+    assert lines == []                                           # once, not per tick
+
+
+def test_a_late_tick_counts_at_most_two_periods():
+    """A controller held up 50 ms (its samples waiting in its queue) does not fault: the late
+    tick counts 2 ms of waiting, not 50."""
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    loop.tick(1.05)                                   # no new sample, 50 ms late
+    assert not loop.axes['x'].faults
+    assert loop.waited['x'] == pytest.approx(2 * T)
+
+
+def test_scheduled_target_starts_at_its_stamp_or_is_cancelled_by_a_stop():
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    loop.schedule(1.2, 'x', 0.01)
+    _run(loop, 1.0, 1.19)
+    assert not loop.axes['x'].status & S.MOVING
+    _run(loop, 1.19, 1.21)
+    assert loop.axes['x'].status & S.MOVING
+
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    loop.schedule(1.2, 'x', 0.01)
+    assert loop.axes['x'].stop('estop')[0]
+    lines = [x for tick in _run(loop, 1.0, 1.3) for x in tick.log]
+    assert any('cancelled by ESTOP' in text for _, text in lines), lines
+    assert not loop.axes['x'].status & S.MOVING and loop.scheduled == []
+
+
+def test_register_sets_apply_together_at_the_next_tick_or_before_a_move():
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    loop.stage('x', {'kp': 1.0})
+    loop.stage('x', {'ki': 2.0})
+    assert loop.axes['x'].r['kp'] != 1.0                      # not before the tick
+    loop.tick(1.0)
+    assert (loop.axes['x'].r['kp'], loop.axes['x'].r['ki']) == (1.0, 2.0)
+    loop.stage('x', {'feedback': 'motor'})
+    assert loop.move({'x': 0.01}) == []                       # the set first, then the move
+    assert loop.axes['x'].r['feedback'] == 'motor' and loop.axes['x'].target == 0.01
