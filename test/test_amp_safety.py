@@ -116,6 +116,10 @@ def _cruise(client):
     assert cruising and not word & FAULTS, \
         f'slide not cruising: v = {client.truth_log[-1][2]:.4f} m/s, status {word!r}'
     client.spin_until(lambda: False, 0.2)       # cruise a little
+    # ... and kill at a moment the slide is seen at full speed (a stream held up on this VM
+    # can trip the 10 ms amplifier watchdog for a moment, which brakes it).
+    assert client.spin_until(lambda: client.truth_log[-1][2] >= 0.99 * MAX_VELOCITY, 1.0), \
+        f'slide not at max_velocity: v = {client.truth_log[-1][2]:.4f} m/s'
     word = Status(client.status['x'])
     assert word & Status.ENABLED and not word & FAULTS, \
         f'the axis faulted while cruising, before the stop: {word!r} (a DDS stall of the ' \
