@@ -1,7 +1,9 @@
 """In-process harness: one controller axis core coupled to one plant core, stepped in lockstep.
 
-Each servo tick the axis reads the plant's encoders, computes its command, and the plant
-integrates one servo period with that command held (zero-order hold, like a DAC). An optional
+Each servo tick the controller's tick (`ServoLoop`, the same object the controller node drives,
+in its sim-time form: each encoder sample is one tick) reads the plant's encoders and computes
+the command, and the plant integrates one servo period with that command held (zero-order hold,
+like a DAC). An optional
 transport delay of whole ticks models the encoder → command path over DDS. No ROS, no clocks:
 a scenario is deterministic and runs many times faster than real time.
 """
@@ -13,6 +15,8 @@ from dataclasses import dataclass, field
 from msg_defs.status import Status
 from motion_ctrl.axis import Axis
 from motion_ctrl.plant import SlidePlant
+from motion_ctrl.registers import CONTROLLER_GLOBAL
+from motion_ctrl.servo_loop import ServoLoop
 
 
 @dataclass
@@ -33,6 +37,9 @@ class Harness:
                  servo_period: float = 1e-3, latency_ticks: int = 0, record: bool = True):
         self.T = servo_period
         self.axis = Axis('x', registers, servo_period, record_events=True)
+        self.loop = ServoLoop({'x': self.axis}, {'x': self.axis.r}, servo_period,
+                              float(CONTROLLER_GLOBAL['feedback_timeout'].default),  # type: ignore[arg-type]
+                              sim_time=True)
         self.plant = SlidePlant(**(plant or {}))
         self.delay = deque([0.0] * latency_ticks)
         self.trace = Trace() if record else None
@@ -45,7 +52,10 @@ class Harness:
 
     def tick(self, disturbance=None) -> None:
         m, l = self.plant.encoder_counts()
-        out = self.axis.update(self.T, m, l)
+        now = self.ticks * self.T
+        self.loop.feedback('x', m, l, now)
+        tick = self.loop.tick(now)
+        out = tick.outputs[0] if tick is not None and tick.names else 0.0
         self.delay.append(out)
         self.plant.step(self.delay.popleft(), self.T)
         self.ticks += 1

@@ -30,6 +30,12 @@ _FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
 _FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
 
 
+def _ns(seconds: float) -> float:
+    """A difference of two stamps [s], back on the nanosecond grid ROS stamps live on: k·T − (k−1)·T
+    in floats is T only to ~1e-18, and the profile must step by exactly the period."""
+    return round(seconds * 1e9) / 1e9
+
+
 @dataclass
 class Tick:
     """What one tick produced: the axes that have feedback, their outputs [V], and log lines
@@ -110,7 +116,7 @@ class ServoLoop:
     # -- the tick -------------------------------------------------------------------------------
     def tick(self, now: float) -> Tick | None:
         """One servo tick at time `now` [s]; None when time did not advance (sim time paused)."""
-        dt = self.period if self.last_tick is None else now - self.last_tick
+        dt = self.period if self.last_tick is None else _ns(now - self.last_tick)
         self.last_tick = now
         if dt <= 0.0:
             return None
@@ -129,7 +135,7 @@ class ServoLoop:
             if s_stamp != self.enc_used[a]:
                 self.waited[a] = 0.0
             else:
-                self.waited[a] += min(dt, 2 * self.period)
+                self.waited[a] = _ns(self.waited[a] + min(dt, 2 * self.period))
                 if self.waited[a] > self.stats.feedback_wait_max:
                     self.stats.feedback_wait_max = self.waited[a]
             stale = self.waited[a] > self.feedback_timeout
@@ -148,7 +154,7 @@ class ServoLoop:
                 volts = axis.update(dt, motor, load, sample_dt=0.0)
             else:
                 prev = self.enc_used[a]
-                sample_dt = None if prev is None else s_stamp - prev
+                sample_dt = None if prev is None else _ns(s_stamp - prev)
                 self.enc_used[a] = s_stamp
                 age = min(max(now - s_stamp, 0.0), 3 * self.period)
                 if not age_recorded:

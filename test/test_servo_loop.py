@@ -45,15 +45,14 @@ def test_feedback_fault_after_the_timeout_logged_once():
     _run(loop, 0.0, 1.0)
     word = loop.axes['x'].status
     assert word & S.ENABLED
-    t = 1.0
-    lines = []
+    last = 1.0 - T                                             # the last sample's tick
+    n, lines = 0, []
     while not loop.axes['x'].faults:
-        tick = loop.tick(t)
-        lines += tick.log
-        t += T
-        assert t < 1.1
-    waited = t - 1.0
-    assert TIMEOUT < waited <= TIMEOUT + 2 * T                  # 20–22 ms without samples
+        n += 1
+        lines += loop.tick(last + n * T).log
+        assert n < 100
+    assert TIMEOUT / T < n <= TIMEOUT / T + 2                    # 20–22 ticks without samples
+    t = last + (n + 1) * T
     assert len(lines) == 1 and 'FEEDBACK_FAULT' in lines[0][1] and 'loop opened' in lines[0][1]
     assert not loop.axes['x'].enabled
     lines = [x for tick in _run(loop, t, t + 0.1, samples=False) for x in tick.log]
