@@ -94,6 +94,10 @@ def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
                       'enabled' if axis.enabled else 'disabled')
         st.values = [KeyValue(key='mode', value=axis.r['mode']),
                      KeyValue(key='feedback', value=axis.r['feedback']),
+                     # the gains the loop runs with (applied, not just accepted)
+                     KeyValue(key='kp', value=repr(axis.r['kp'])),
+                     KeyValue(key='ki', value=repr(axis.r['ki'])),
+                     KeyValue(key='kd', value=repr(axis.r['kd'])),
                      KeyValue(key='enabled', value=str(axis.enabled)),
                      KeyValue(key='status', value=f'0x{int(axis.status):05x}'),
                      KeyValue(key='following_error_m', value=f'{axis.following_error:.3e}'),

@@ -352,16 +352,31 @@ def test_off_grid_target_settles(axis):
 
 
 # -- 2. parameters through the parameter services --------------------------------------------------
+def _axis_diag(p: Probe, key: str, since: float):
+    """`key` of axis x in the newest /diagnostics stamped after `since` [s], or None."""
+    for _, m in reversed(p.diag):
+        if m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 <= since:
+            break
+        for st in m.status:
+            if st.name.endswith('axis x'):
+                return {kv.key: kv.value for kv in st.values}.get(key)
+    return None
+
+
 def test_set_kp_is_applied(axis):
-    """`ros2 param set /controller x.kp ...`: accepted, read back, and the loop still moves
-    and settles with it."""
+    """`ros2 param set /controller x.kp ...`: accepted, read back, in the loop (the gains
+    /diagnostics reports are those the axis runs with), and the loop still moves and settles
+    with it."""
     p = axis
     old = p.get_params('x.kp')['x.kp']
     new = old * 1.2
     results = p.set_params({'x.kp': new})
     assert results[0].successful, results[0].reason
+    t0 = p.now() + 0.01             # applied at the tick after the answer: diagnostics after it
     try:
         assert p.get_params('x.kp') == {'x.kp': new}
+        assert p.spin_until(lambda: _axis_diag(p, 'kp', t0) is not None, 2.5)
+        assert float(_axis_diag(p, 'kp', t0)) == new
         p.move_and_wait(far_target(p.position(), 0.005))
     finally:
         assert p.set_params({'x.kp': old})[0].successful
