@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import signal
 import time
+from typing import cast
 
 import pytest
 
@@ -35,7 +36,7 @@ except ImportError:
     pass
 
 COUNT = INCH / 10000
-COMMAND_TIMEOUT = PLANT_AXIS['command_timeout'].default
+COMMAND_TIMEOUT = cast(float, PLANT_AXIS['command_timeout'].default)   # a 'double' register
 PLANT_PERIOD = 1e-3            # s: the plant's cycle (publish_rate 1 kHz)
 TRANSPORT = 2e-3               # s: a command's age on arrival over DDS, at most (README)
 MAX_VELOCITY = 0.1             # the controller's default max_velocity [m/s]

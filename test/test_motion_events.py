@@ -33,8 +33,15 @@ class Recorder:
 
     def __init__(self, h: Harness):
         self.h = h
-        self.t, self.word, self.cmd, self.cmd_vel, self.cmd_acc = [], [], [], [], []
-        self.act, self.act_vel, self.done, self.settle_start = [], [], [], []
+        self.t: list[float] = []
+        self.word: list[int] = []
+        self.cmd: list[float] = []
+        self.cmd_vel: list[float] = []
+        self.cmd_acc: list[float] = []
+        self.act: list[float] = []
+        self.act_vel: list[float] = []
+        self.done: list[bool] = []
+        self.settle_start: list[float | None] = []
 
     def __call__(self, h):
         a, p = h.axis, h.axis.profile
