@@ -221,6 +221,11 @@ class Axis:
         return self._motor_side
 
     @property
+    def fault_bits(self) -> int:
+        """`faults` as a plain int, for the servo tick."""
+        return self._faults
+
+    @property
     def faults(self) -> Status:
         """FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT: the loop is open until reset."""
         return status_word(self._faults)

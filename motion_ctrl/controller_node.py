@@ -209,12 +209,8 @@ class ControllerNode(ros_params.RegisterNode):
     def _on_target_velocity(self, msg: JointState) -> None:
         jogs = self._targets(msg, 'velocity', 'target_velocity')
         self._log(self.loop.unschedule(jogs, 'a jog'))
-        if jogs and self.loop.staged:
-            self._log(self.loop.apply_staged())   # (in order: see ServoLoop.move)
-        for a, v in jogs.items():
-            ok, reason = self.axes[a].jog(v)
-            if not ok:
-                self._refused(f'jog:{a}', f'target_velocity refused: {reason}')
+        for a, reason in self.loop.jog(jogs):
+            self._refused(f'jog:{a}', f'target_velocity refused: {reason}')
 
     def _make_services(self, a: str) -> None:
         axis = self.axes[a]
@@ -324,11 +320,6 @@ def spin(node) -> None:
         rclpy.try_shutdown()
 
 
-def argv_names(argv: list[str]) -> set[str]:
-    """Names of the parameters given with -p."""
-    return {b.split(':=', 1)[0] for a, b in zip(argv, argv[1:]) if a in ('-p', '--param')}
-
-
 def run(node_class, args=None) -> int:
     """Start a node; a bad parameter (from a YAML or the command line) exits 2 with one line."""
     from rclpy.exceptions import (InvalidParameterTypeException,
@@ -353,10 +344,7 @@ def run(node_class, args=None) -> int:
         # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
         # <name>"; the reason names the parameter too.
         msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
-        name = getattr(e, 'parameter_name', None) or next(
-            (w.rstrip(':,') for w in msg.split() if '.' in w.rstrip(':,') or
-             w.rstrip(':,') in argv_names(argv)), None)
-        where = ros_params.where_from(name, argv)
+        where = ros_params.where_from(msg, argv)
         print(f'{node_class.__name__}: bad parameter{f" (from {where})" if where else ""}: '
               f'{msg}', file=sys.stderr)
         rclpy.try_shutdown()

@@ -7,6 +7,7 @@ range).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -125,11 +126,13 @@ def params_files_refusal(node_name: str, args: list[str]):
     return None
 
 
-def where_from(name: str | None, args: list[str]) -> str:
-    """Where a start-up value of parameter `name` came from: `-p name:=value` on the command
-    line (it wins over the files), else the params files."""
+def where_from(refusal: str, args: list[str]) -> str:
+    """Where the start-up value a `refusal` (which names its parameter) is about came from:
+    a `-p name:=value` whose name it names (the command line wins over the files), else the
+    params files."""
     for a, b in zip(args, args[1:]):
-        if a in ('-p', '--param') and name and b.split(':=', 1)[0] == name:
+        if a in ('-p', '--param') and re.search(rf'(?<![\w.]){re.escape(b.split(":=", 1)[0])}'
+                                                rf'(?![\w.])', refusal):
             return f'-p {b}'
     return ', '.join(_params_files(args))
 

@@ -113,6 +113,17 @@ class ServoLoop:
                 refused.append((a, reason))
         return refused
 
+    def jog(self, velocities: dict) -> list[tuple[str, str]]:
+        """Start jogs now, after any register set accepted before them (as `move`)."""
+        if self.staged:
+            self.apply_staged()
+        refused = []
+        for a, v in velocities.items():
+            ok, reason = self.axes[a].jog(v)
+            if not ok:
+                refused.append((a, reason))
+        return refused
+
     # -- the tick -------------------------------------------------------------------------------
     def tick(self, now: float) -> Tick | None:
         """One servo tick at time `now` [s]; None when time did not advance (sim time paused)."""
@@ -144,7 +155,7 @@ class ServoLoop:
                 if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
                     continue             # the encoder stream is not established yet: wait
             if stale:
-                if not int(axis.faults) & _FEEDBACK_FAULT:
+                if not axis.fault_bits & _FEEDBACK_FAULT:
                     opened = 'loop opened' if axis.enabled else 'the loop was open'
                     out.log.append(('error', (
                         f'{a}: FEEDBACK_FAULT: no new encoder sample for '
@@ -161,7 +172,7 @@ class ServoLoop:
                     age_recorded = True
                     self.stats.feedback_age(age)
                 volts = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
-            faults = int(axis.faults)
+            faults = axis.fault_bits
             if faults & _FE_FATAL and not self._faults[a] & _FE_FATAL:
                 out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call '
                                          f'{a}/reset'))
