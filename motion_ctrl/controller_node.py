@@ -79,19 +79,13 @@ class ControllerNode(ros_params.RegisterNode):
         self.add_post_set_parameters_callback(self._stage)
         self.joints = [(a, md.motor_joint(a), md.load_joint(a)) for a in self.axis_names]
 
-        qos = md.SERVO_QOS
-        def stream(topic):
-            return md.JointStateStream(self.create_publisher(JointState, topic, qos),
-                                       self._publish_refused)
-        self.pub_command = stream(md.COMMAND)
-        self.pub_joint = stream(md.JOINT_STATES)
-        self.pub_reference = stream(md.REFERENCE_STATES)
-        self.pub_motor = stream(md.MOTOR_STATES)
-        self.pub_status = {a: md.Stream(self.create_publisher(UInt32, md.status_topic(a),
-                                                              md.STATUS_QOS), self._publish_refused)
+        self.pub_command = self.stream(JointState, md.COMMAND)
+        self.pub_joint = self.stream(JointState, md.JOINT_STATES)
+        self.pub_reference = self.stream(JointState, md.REFERENCE_STATES)
+        self.pub_motor = self.stream(JointState, md.MOTOR_STATES)
+        self.pub_status = {a: self.stream(UInt32, md.status_topic(a), md.STATUS_QOS)
                            for a in self.axis_names}
-        self.pub_diag = md.Stream(self.create_publisher(DiagnosticArray, md.DIAGNOSTICS, 10),
-                                  self._publish_refused)
+        self.pub_diag = self.stream(DiagnosticArray, md.DIAGNOSTICS, 10)
         self.create_subscription(JointState, md.ENCODERS, self._on_encoders, md.SERVO_READ_QOS)
         self.create_subscription(JointState, md.TARGET_POSITION, self._raw_target(
             self._on_target_position, 'target_position'), 10, raw=True)
@@ -265,10 +259,6 @@ class ControllerNode(ros_params.RegisterNode):
                 self.last_status[a] = s
                 self.last_status_time[a] = now
         self.stats.work(time.perf_counter() - t_start)
-
-    def _publish_refused(self, topic: str, error: Exception) -> None:
-        self.get_logger().warning(f'{topic}: publish refused ({error}); the loop runs on',
-                                  throttle_duration_sec=1.0)
 
     def shutdown_outputs(self) -> None:
         """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V

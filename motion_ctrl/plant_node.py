@@ -56,14 +56,10 @@ class PlantNode(ros_params.RegisterNode):
             self.plants[a] = SlidePlant(substep_rate=g['substep_rate'], **values[a])
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
-        def stream(topic):
-            return md.JointStateStream(
-                self.create_publisher(JointState, topic, md.SERVO_QOS), self._publish_refused)
-        self.pub_enc = stream(md.ENCODERS)
-        self.pub_truth = stream(md.PLANT_STATES)
-        self.pub_amp = stream(md.AMPLIFIER_STATES)
-        self.pub_fault = {a: md.Stream(self.create_publisher(Bool, md.amplifier_fault_topic(a),
-                                                             md.STATUS_QOS), self._publish_refused)
+        self.pub_enc = self.stream(JointState, md.ENCODERS)
+        self.pub_truth = self.stream(JointState, md.PLANT_STATES)
+        self.pub_amp = self.stream(JointState, md.AMPLIFIER_STATES)
+        self.pub_fault = {a: self.stream(Bool, md.amplifier_fault_topic(a), md.STATUS_QOS)
                           for a in self.axis_names}
         self.fault = {a: None for a in self.axis_names}      # last published, and when
         self.fault_time = {a: -1.0 for a in self.axis_names}
@@ -83,10 +79,6 @@ class PlantNode(ros_params.RegisterNode):
             f'backlash slide for axes {self.axis_names}: resonance {p.resonance_hz:.0f} Hz, '
             f'backlash {p.params["backlash"] * 1e6:.1f} um, publishing at '
             f'{1 / self.period:g} Hz')
-
-    def _publish_refused(self, topic: str, error: Exception) -> None:
-        self.get_logger().warning(f'{topic}: publish refused ({error}); the plant runs on',
-                                  throttle_duration_sec=1.0)
 
     def current(self, axis: str) -> dict:
         return self.plants[axis].params

@@ -155,6 +155,19 @@ class RegisterNode(Node):
     def current(self, axis: str) -> dict:
         raise NotImplementedError
 
+    def stream(self, msg_type, topic: str, qos=None):
+        """A publisher (servo QoS unless given) whose refused publishes are counted and logged,
+        not raised (msg_defs.Stream; JointStateStream for JointState)."""
+        import msg_defs as md
+        from sensor_msgs.msg import JointState
+        pub = self.create_publisher(msg_type, topic, md.SERVO_QOS if qos is None else qos)
+        return (md.JointStateStream if msg_type is JointState else md.Stream)(
+            pub, self._publish_refused)
+
+    def _publish_refused(self, topic: str, error: Exception) -> None:
+        self.get_logger().warning(f'{topic}: publish refused ({error}); the node runs on',
+                                  throttle_duration_sec=1.0)
+
     def set_parameters_atomically(self, parameter_list):
         """The parameter services (`ros2 param set`, `ros2 param load`, set_parameters,
         set_parameters_atomically) all land here, one parameter at a time for set_parameters.
