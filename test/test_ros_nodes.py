@@ -622,7 +622,9 @@ def test_correct_lands_the_slide_after_a_reversal_with_motor_feedback(axis):
         p.move_and_wait(back)
         p.spin_until(p.slide_at_rest, 2.0)          # it can coast on into the gap
         missed = (p.load_position() - back) / COUNT
-        assert missed > 10.0, f'nothing to correct: the slide is {missed:+.1f} counts off'
+        # Usually most of the 20-count gap; a loaded machine (CI) once let it coast to +7.7.
+        # Twice the tolerance is enough for the check below to fail without the correction.
+        assert missed > 4.0, f'nothing to correct: the slide is {missed:+.1f} counts off'
         mark = p.mark()
         reply = p.call('correct')
         assert reply.success, reply.message
