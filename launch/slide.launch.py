@@ -1,13 +1,18 @@
 """Controller + simulated backlash slide.
 
 ros2 launch motion_ctrl slide.launch.py [controller_params:=FILE]
-    [plant_params:=FILE] [use_sim_time:=true|false]
+    [plant_params:=FILE] [use_sim_time:=true|false] [axes:=x,y]
 
 use_sim_time:=true runs the deterministic lockstep simulation: the plant (lockstep: 1) is the
 /clock and the controller runs on it, ticking on each encoder sample.
+
+axes:=x,y (or "[x, y]") sets both nodes' `axes` over the params files. The names go to the nodes
+quoted: ROS's YAML parser reads y, n, on, off as booleans.
 """
+import tempfile
+
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
@@ -35,11 +40,35 @@ def generate_launch_description():
             'use_sim_time', default_value='false',
             description='Lockstep simulation: the plant publishes /clock, the controller '
                         'runs on it (true/false)'),
+        DeclareLaunchArgument(
+            'axes', default_value='',
+            description='Axis names for both nodes, comma-separated (x,y); empty: as the '
+                        'params files say'),
+        OpaqueFunction(function=nodes, args=[use_sim_time, lockstep]),
+    ])
+
+
+def axes_file(context) -> list:
+    """A params file setting `axes` for every node, names quoted; [] when not asked for."""
+    text = LaunchConfiguration('axes').perform(context).strip().strip('[]')
+    names = [n.strip().strip('\'"') for n in text.split(',') if n.strip()]
+    if not names:
+        return []
+    with tempfile.NamedTemporaryFile('w', prefix='motion_ctrl_axes_', suffix='.yaml',
+                                     delete=False) as f:
+        f.write('/**:\n  ros__parameters:\n    axes: [%s]\n'
+                % ', '.join(f"'{n}'" for n in names))
+    return [f.name]
+
+
+def nodes(context, use_sim_time, lockstep):
+    axes = axes_file(context)
+    return [
         Node(
             package='motion_ctrl',
             executable='controller',
             name='controller',
-            parameters=[LaunchConfiguration('controller_params'),
+            parameters=[LaunchConfiguration('controller_params'), *axes,
                         {'use_sim_time': use_sim_time}],
             output='screen',
         ),
@@ -47,7 +76,7 @@ def generate_launch_description():
             package='motion_ctrl',
             executable='plant',
             name='plant',
-            parameters=[LaunchConfiguration('plant_params'), {'lockstep': lockstep}],
+            parameters=[LaunchConfiguration('plant_params'), *axes, {'lockstep': lockstep}],
             output='screen',
         ),
-    ])
+    ]

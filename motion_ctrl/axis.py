@@ -335,6 +335,37 @@ class Axis:
         self.settling.start_position_move(loop_target)
         self._start_corrections()
 
+    @property
+    def path_state(self) -> tuple[float, float, float]:
+        """(position, velocity, acceleration) of the unsmoothed command, user frame: where a
+        trajectory starting now starts (its implicit first point)."""
+        p = self.profile
+        return p.raw_position - self.sampled_offset, p.raw_velocity, p.raw_acceleration
+
+    def follow(self, path):
+        """Follow this axis's share of a multi-axis trajectory (PMAC PVT; `Profile.follow`),
+        in the user frame. The trajectory was checked as a whole (motion_ctrl.trajectory); the
+        soft limits are checked here again, as for any target. Settling, corrections, stops and
+        faults treat it as a move to its last point."""
+        reason = self._refuse_unless_ready() or self._refuse_below_stop('trajectory')
+        if reason:
+            return False, reason
+        lo, hi = path.extrema
+        if lo < self._soft_lo - _LIMIT_EPS or hi > self._soft_hi + _LIMIT_EPS:
+            return self._refuse_limit(f'trajectory reaches [{lo:g}, {hi:g}] m, outside the soft '
+                                      f'limits [{self._soft_lo:g}, {self._soft_hi:g}]')
+        off = self.sampled_offset
+        try:
+            self.profile.follow(path, off)
+        except ValueError as e:
+            return False, f'{self.name}: {e}'
+        self.target = float(path.end)
+        self._guard = 0
+        self.settling.start_position_move(self.target + off)
+        self._start_corrections()
+        self._sticky &= ~_LIMIT
+        return True, ''
+
     def jog(self, velocity: float):
         if not _number(velocity) or not math.isfinite(velocity):
             return False, f'{self.name}: velocity {velocity!r} is not a finite number'

@@ -319,7 +319,8 @@ def run(node_class, args=None) -> int:
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override
-        print(f'{node_class.__name__}: bad arguments: {str(e).splitlines()[0]}', file=sys.stderr)
+        print(f'{node_class.__name__}: bad arguments: {str(e).splitlines()[0]}'
+              f'{ros_params.yaml_bool_hint(str(e))}', file=sys.stderr)
         return 2
     argv = list(args or sys.argv)
     refusal = ros_params.params_files_refusal(node_class.NODE_NAME, argv)

@@ -19,15 +19,32 @@ filter at dt = T and still behaves when a tick is late. Position, velocity
 and acceleration go through the same filter, so the commanded state stays
 continuous even where a trapezoid steps its acceleration.
 
+A third kind of segment is a path given from outside (`follow`): one axis's share of a timed
+multi-axis trajectory (PMAC PVT mode, motion_ctrl.trajectory), sampled at the same segment time
+as a ruckig plan, so every axis stepped with the same dt stays on one time base. Stops re-plan
+from the path's state with ruckig as from any move.
+
 Plain Python, no rclpy, deterministic: the only clock is the dt passed in.
 """
 
 import math
+from typing import Protocol
 
 from ruckig import (ControlInterface, InputParameter, Result, Ruckig,
                     RuckigError, Trajectory)
 
-__all__ = ['Profile']
+__all__ = ['Path', 'Profile']
+
+
+class Path(Protocol):
+    """One axis's share of a timed trajectory, as `Profile.follow` samples it."""
+    duration: float                      # s
+    end: float                           # final position (m), reached at rest
+    extrema: tuple[float, float]         # (min, max) position over the path (m)
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """(position, velocity, acceleration) at t seconds from the start."""
+        ...
 
 _INF = math.inf
 
@@ -63,7 +80,7 @@ class Profile:
     State after step():
       position, velocity, acceleration              commanded (smoothed)
       raw_position, raw_velocity, raw_acceleration  unfiltered profile
-      kind             'idle' | 'position' | 'velocity' | 'stop'
+      kind             'idle' | 'position' | 'velocity' | 'stop' | 'path'
       target           final position of the current/last position move
       target_velocity  velocity of the current velocity move, else None
       done, at_target, moving  (properties)
@@ -82,6 +99,8 @@ class Profile:
     _raw_done: bool
     _settled: bool
     _seg_velocity: float
+    _path: Path | None
+    _offset: float
 
     def __init__(self, position: float = 0.0):
         if not _finite(position):
@@ -164,6 +183,25 @@ class Profile:
         self.target = target
         self.target_velocity = None
 
+    def follow(self, path: Path, offset: float = 0.0) -> None:
+        """Follow `path` (its `at(t) -> (p, v, a)` from t = 0 to `path.duration`, ending at rest
+        at `path.end`; `path.extrema` its (min, max) position), shifted by `offset` (the loop's
+        frame). The caller starts it from the present state (`at(0)` is the raw state now:
+        the trajectory's implicit first point), so nothing jumps."""
+        duration = float(path.duration)
+        if not (_finite(duration) and duration > 0):
+            raise ValueError(f'path duration must be finite and > 0, got {duration!r}')
+        self._path = path
+        self._offset = float(offset)
+        self.duration = duration
+        self._t = 0.0
+        self._raw_done = False
+        self._settled = False
+        self._seg_velocity = 0.0
+        self.kind = 'path'
+        self.target = float(path.end) + self._offset
+        self.target_velocity = None
+
     def jog(self, velocity: float) -> None:
         """Velocity move; 0 decelerates to rest.
 
@@ -219,6 +257,11 @@ class Profile:
             self._t = t
             if t >= self.duration:
                 self._finish_segment(t)
+            elif self._path is not None:
+                p, v, a = self._path.at(t)
+                self.raw_position = p + self._offset
+                self.raw_velocity = v
+                self.raw_acceleration = a
             else:
                 p, v, a = self._traj.at_time(t)
                 self.raw_position = p[0]
@@ -264,6 +307,9 @@ class Profile:
         in to its end (ruckig's exact extrema); a jog cruises on beyond its segment."""
         if self._raw_done:
             return self.raw_position, self.raw_position
+        if self._path is not None:
+            lo, hi = self._path.extrema
+            return lo + self._offset, hi + self._offset
         ext = self._traj.position_extrema[0]
         return ext.min, ext.max
 
@@ -275,7 +321,7 @@ class Profile:
 
     @property
     def at_target(self) -> bool:
-        return self.kind == 'position' and self.raw_position == self.target
+        return self.kind in ('position', 'path') and self.raw_position == self.target
 
     @property
     def moving(self) -> bool:
@@ -307,6 +353,8 @@ class Profile:
         self._raw_done = True
         self._settled = True
         self._seg_velocity = 0.0
+        self._path = None
+        self._offset = 0.0
 
     def _plan(self, interface, target_position, target_velocity, max_acceleration,
               max_velocity=None):
@@ -356,10 +404,11 @@ class Profile:
         self._raw_done = False
         self._settled = False
         self._seg_velocity = target_velocity
+        self._path = None
 
     def _finish_segment(self, t):
         duration = self.duration
-        if self.kind == 'position':
+        if self.kind in ('position', 'path'):
             # Exactly the target: ruckig's end sample carries float residue.
             self.raw_position = self.target
         else:

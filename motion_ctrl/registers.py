@@ -401,7 +401,9 @@ def _yaml_value(reg, value) -> str:
         return value
     if reg.type == 'double_array':
         return '[' + ', '.join(_yaml_float(v) for v in value) + ']'
-    return '[' + ', '.join(value) + ']'
+    # Quoted: rcl's YAML reads y, n, on, off (and yes, no, true, false) as booleans, and an
+    # unquoted `axes: [x, y]` is refused as a list of mixed types.
+    return '[' + ', '.join(f"'{v}'" for v in value) + ']'
 
 
 def params_yaml(node: str, globals_, axis_table, axes=('x',)) -> str:

@@ -268,3 +268,12 @@ class RegisterNode(Node):
         """Why `changes` cannot apply to what the axis is doing now, or None (a node whose
         registers bear on motion in progress says so)."""
         return None
+
+
+def yaml_bool_hint(rcl_error: str) -> str:
+    """What to do about rcl's refusal of a list that YAML reads as mixed types: axis names such
+    as y, n, on, off are YAML booleans to rcl's parser (`axes: [x, y]` is a string and a bool)."""
+    if 'Sequence should be of same type' not in rcl_error:
+        return ''
+    return ("; names such as y, n, on, off are booleans to ROS's YAML parser: quote them, "
+            """-p 'axes:=["x", "y"]' or axes: ['x', 'y'] in a params file""")

@@ -125,6 +125,22 @@ def test_malformed_params_file_exits_naming_the_file(tmp_path, node_env):
     assert last.startswith('ControllerNode: bad arguments') and str(bad) in last, r.stderr
 
 
+@pytest.mark.parametrize('how', ['params-file', '-p'])
+def test_unquoted_axis_names_that_are_yaml_booleans_are_refused_with_the_fix(tmp_path,
+                                                                            node_env, how):
+    """Issue 16: `axes: [x, y]` is a string and a bool to rcl's YAML parser (y, n, on, off are
+    booleans); the node exits 2 and says to quote them, as the shipped files do."""
+    f = tmp_path / 'two_axes.yaml'
+    f.write_text('controller:\n  ros__parameters:\n    axes: [x, y]\n')
+    extra = ['--params-file', str(f)] if how == 'params-file' else ['-p', 'axes:=[x,y]']
+    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.controller_node', '--ros-args',
+                        *extra], capture_output=True, text=True, timeout=30, env=node_env)
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    last = r.stderr.strip().splitlines()[-1]
+    assert 'Traceback' not in r.stderr and 'quote them' in last, r.stderr
+    assert "axes: ['x', 'y']" in last and """-p 'axes:=["x", "y"]'""" in last, last
+
+
 def _alive(pid: int) -> bool:
     try:
         with open(f'/proc/{pid}/stat') as f:
