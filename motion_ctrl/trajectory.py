@@ -56,9 +56,12 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.interpolate import BPoly, CubicHermiteSpline, CubicSpline, PPoly
+from scipy.optimize import brentq
+from scipy.spatial import cKDTree
 
-__all__ = ['AxisLimits', 'AxisState', 'Trajectory', 'check', 'START_TOLERANCE',
-           'REST_TOLERANCE', 'LIMIT_TOLERANCE']
+__all__ = ['AxisLimits', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
+           'rounded_square', 'contour_error', 'START_TOLERANCE', 'REST_TOLERANCE',
+           'LIMIT_TOLERANCE']
 
 # A first point at t=0 "is" the axis's state within this (m, m/s, m/s²): far below a count
 # (2.54 µm) yet above the rounding of a state read back from the controller and sent again.
@@ -92,6 +95,15 @@ class AxisLimits:
     def from_registers(cls, r: Mapping) -> AxisLimits:
         return cls(float(r['soft_limit_min']), float(r['soft_limit_max']),
                    float(r['max_velocity']), float(r['max_acceleration']))
+
+
+class Points(NamedTuple):
+    """Trajectory points, as a JointTrajectory carries them: times (n,) in s from the start,
+    positions (n, axes) m, velocities / accelerations (n, axes) or None."""
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray | None = None
+    accelerations: np.ndarray | None = None
 
 
 # ------------------------------------------------------------------------------- validation
@@ -401,6 +413,14 @@ class Trajectory:
             raise ValueError(r)
         return r
 
+    @classmethod
+    def from_points(cls, names: Sequence[str], points: Points, *,
+                    start: Mapping[str, Sequence[float]],
+                    limits: Mapping[str, AxisLimits]) -> Trajectory:
+        """build() from a Points (circle, rounded_square)."""
+        return cls.build(names, points.times, points.positions, points.velocities,
+                         points.accelerations, start=start, limits=limits)
+
     def sample(self, t):
         """(position, velocity, acceleration) at time t (s from the start, >= 0): arrays of
         shape (axes,) for a scalar t, (len(t), axes) for an array. From the last time on:
@@ -427,3 +447,156 @@ class Trajectory:
             values = _candidates(pp, 0)[1]
             out[name] = (float(values.min()), float(values.max()))
         return out
+
+
+# ------------------------------------------------------------------------- example paths
+
+def _ramp_profile(length: float, speed: float, ramp_time: float):
+    """Arc length s(t) along a path of `length`: the tangential speed rises from 0 to `speed`
+    over ramp_time as v·(3τ² − 2τ³) (acceleration continuous, 0 at both ends of the ramp),
+    cruises, and falls back to 0 the same way. Returns (duration, s(t) -> (s, s', s''))."""
+    if not (speed > 0 and ramp_time > 0 and length > 0):
+        raise ValueError('speed, ramp_time and the path length must be > 0')
+    if length < speed * ramp_time:
+        raise ValueError(f'the path ({length * 1e3:g} mm) is shorter than its two speed ramps '
+                         f'need (speed × ramp_time = {speed * ramp_time * 1e3:g} mm): lower '
+                         'ramp_time or speed')
+    total = length / speed + ramp_time
+
+    def s_of_t(t):
+        t = np.asarray(t, dtype=float)
+        up = np.clip(t / ramp_time, 0.0, 1.0)
+        down = np.clip((total - t) / ramp_time, 0.0, 1.0)
+        ramp_s = speed * ramp_time * (up ** 3 - up ** 4 / 2)
+        s = np.where(t <= ramp_time, ramp_s, speed * (t - ramp_time / 2))
+        s = np.where(t >= total - ramp_time,
+                     length - speed * ramp_time * (down ** 3 - down ** 4 / 2), s)
+        sd = speed * np.minimum(3 * up ** 2 - 2 * up ** 3, 3 * down ** 2 - 2 * down ** 3)
+        sdd = (speed / ramp_time) * (6 * up * (1 - up) * (t < ramp_time)
+                                     - 6 * down * (1 - down) * (t > total - ramp_time))
+        return s, sd, sdd
+    return total, s_of_t
+
+
+def _grid(total: float, ramp_time: float, dt: float, start_time: float,
+          extra=()) -> np.ndarray:
+    """Times 0..total at most dt apart, with a point where each speed ramp ends (the jerk steps
+    there; a segment across it would blur the path) and at `extra`; a grid time closer than
+    dt/4 to one of those gives way to it."""
+    if not (dt > 0 and start_time >= 0):
+        raise ValueError(f'dt must be > 0 and start_time >= 0, got {dt!r}, {start_time!r}')
+    t = np.linspace(0.0, total, int(math.ceil(total / dt - 1e-9)) + 1)
+    keep = np.array([ramp_time, total - ramp_time, *extra], dtype=float)
+    near = np.min(np.abs(t[:, None] - keep[None, :]), axis=1) < dt / 4
+    return np.union1d(t[~near | (t == 0) | (t == total)], keep)
+
+
+def circle(center: Sequence[float], radius: float, speed: float, *, turns: float = 1.0,
+           ramp_time: float = 0.5, start_angle: float = 0.0, dt: float = 0.01,
+           start_time: float = 0.0) -> Points:
+    """Points (times, positions, velocities, accelerations) of `turns` counter-clockwise turns
+    of a circle in (x, y), m, starting and ending at rest at `start_angle` (rad): the tangential
+    speed ramps up to `speed` (m/s) over ramp_time (s), cruises, and ramps down (_ramp_profile),
+    so velocity and acceleration are continuous. Every point lies on the circle with its exact
+    velocity and acceleration (tangential s'' plus centripetal s'²/r): the quintic segments
+    between them stay on it (within 1.2e-14 m for r = 10 mm at 20 mm/s, dt = 10 ms). Points
+    at most dt (s) apart from start_time (s), and at the ends of the ramps: the first at rest
+    on the circle, so with start_time 0 the axes must already be there."""
+    if not radius > 0:
+        raise ValueError(f'radius must be > 0, got {radius!r}')
+    total, s_of_t = _ramp_profile(2 * math.pi * radius * turns, speed, ramp_time)
+    t = _grid(total, ramp_time, dt, start_time)
+    s, sd, sdd = s_of_t(t)
+    theta = start_angle + s / radius
+    c, n = np.cos(theta), np.sin(theta)
+    tangent, inward = np.stack([-n, c], axis=1), -np.stack([c, n], axis=1)
+    positions = np.asarray(center, dtype=float) + radius * np.stack([c, n], axis=1)
+    velocities = sd[:, None] * tangent
+    accelerations = sdd[:, None] * tangent + (sd ** 2 / radius)[:, None] * inward
+    return Points(t + start_time, positions, velocities, accelerations)
+
+
+def _square_geometry(s, half: float, r: float):
+    """Point, unit tangent and curvature (1/m) at arc length s along a square of half-side
+    `half` with corners rounded to radius r, counter-clockwise from the middle of the bottom
+    side: each side is a straight run of 2(half − r) and a quarter circle, the next side the
+    same turned 90°."""
+    run = 2 * (half - r)
+    side = run + math.pi * r / 2
+    u = np.mod(np.asarray(s, dtype=float) + (half - r), 4 * side)
+    k = np.minimum(np.floor(u / side), 3)
+    u = u - k * side
+    phi = np.clip((u - run) / r, 0.0, math.pi / 2)
+    on_arc = u > run
+    # the bottom side, then turned by k·90°
+    px = np.where(on_arc, half - r + r * np.sin(phi), -half + r + u)
+    py = np.where(on_arc, -half + r - r * np.cos(phi), -half)
+    tx, ty = np.where(on_arc, np.cos(phi), 1.0), np.where(on_arc, np.sin(phi), 0.0)
+    ang = k * (math.pi / 2)
+    ca, sa = np.cos(ang), np.sin(ang)
+    point = np.stack([ca * px - sa * py, sa * px + ca * py], axis=1)
+    tangent = np.stack([ca * tx - sa * ty, sa * tx + ca * ty], axis=1)
+    return point, tangent, np.where(on_arc, 1.0 / r, 0.0)
+
+
+def rounded_square(center: Sequence[float], side: float, corner_radius: float, speed: float,
+                   *, ramp_time: float = 0.5, dt: float = 0.01,
+                   start_time: float = 0.0) -> Points:
+    """Points (times, positions, velocities; no accelerations: cubic Hermite, PMAC PVT) of one
+    counter-clockwise lap of a square of `side` (m) centred on `center`, corners rounded to
+    corner_radius (0 < r <= side/2), from and back to rest at the middle of its bottom side,
+    with the circle's speed ramps. The curvature steps where a straight run meets a corner, so
+    a point is placed exactly at each of those 8 junctions: the cubic between two points then
+    follows one piece only and stays within 0.3 nm of the path at 20 mm/s, dt = 10 ms,
+    r = 3 mm (0.2 µm with the points on the time grid only, cutting the corners)."""
+    half = side / 2
+    if not 0 < corner_radius <= half:
+        raise ValueError(f'corner_radius must be in (0, side/2 = {half:g} m], '
+                         f'got {corner_radius!r}')
+    r = corner_radius
+    run, length = 2 * (half - r), 4 * (2 * (half - r) + math.pi * r / 2)
+    total, s_of_t = _ramp_profile(length, speed, ramp_time)
+    junctions = [j * (run + math.pi * r / 2) + d for j in range(4) for d in (0.0, run)]
+    junctions = [a for a in np.mod(np.array(junctions) - (half - r), length) if 0 < a < length]
+    times = [brentq(lambda t, a=a: float(s_of_t(t)[0]) - a, 0.0, total, xtol=1e-15)
+             for a in junctions]
+    t = _grid(total, ramp_time, dt, start_time, times)
+    s, sd, _ = s_of_t(t)
+    point, tangent, _ = _square_geometry(s, half, r)
+    positions = np.asarray(center, dtype=float) + point
+    return Points(t + start_time, positions, sd[:, None] * tangent, None)
+
+
+def contour_error(path_xy, actual_xy) -> np.ndarray:
+    """Distance (m) of each actual (x, y) from the commanded path, given as a polyline of
+    finely sampled commanded points (e.g. Trajectory.sample every servo period): the distance
+    to the nearest polyline segment, exactly.
+
+    Not every segment is looked at: with d0 the distance to the nearest path point (a k-d
+    tree) and L the longest segment, the nearest segment has an end within sqrt(d0² + L²/4)
+    (the foot of the perpendicular is no farther than d0, and an end no farther than L/2 from
+    the foot), so the segments next to the path points within that radius hold it."""
+    path = np.asarray(path_xy, dtype=float)
+    act = np.asarray(actual_xy, dtype=float)
+    if path.ndim != 2 or path.shape[1] != 2 or act.ndim != 2 or act.shape[1] != 2:
+        raise ValueError('path_xy and actual_xy must be (n, 2) arrays')
+    tree = cKDTree(path)
+    d0 = tree.query(act)[0]
+    if len(path) == 1 or len(act) == 0:
+        return d0
+    a, d = path[:-1], np.diff(path, axis=0)
+    dd = np.einsum('ij,ij->i', d, d)
+    radius = np.sqrt(d0 ** 2 + dd.max() / 4) * (1 + 1e-12) + 1e-300
+    balls = tree.query_ball_point(act, radius)
+    counts = np.array([len(b) for b in balls])
+    vertex = np.concatenate([np.asarray(b, dtype=int) for b in balls])
+    owner = np.repeat(np.arange(len(act)), counts)
+    # the segments i-1 and i next to each path point i, as (owner, segment) pairs
+    seg = np.clip(np.concatenate([vertex - 1, vertex]), 0, len(a) - 1)
+    owner = np.concatenate([owner, owner])
+    q = act[owner] - a[seg]
+    u = np.clip(np.einsum('ij,ij->i', q, d[seg]) / np.where(dd[seg] > 0, dd[seg], 1.0), 0, 1)
+    gap = q - u[:, None] * d[seg]
+    dist = np.full(len(act), np.inf)
+    np.minimum.at(dist, owner, np.einsum('ij,ij->i', gap, gap))
+    return np.sqrt(dist)

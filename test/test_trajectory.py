@@ -11,7 +11,8 @@ import pytest
 from scipy.interpolate import BPoly
 
 from motion_ctrl.registers import axis_defaults
-from motion_ctrl.trajectory import AxisLimits, AxisState, Trajectory, check
+from motion_ctrl.trajectory import (AxisLimits, AxisState, Trajectory, check, circle,
+                                    contour_error, rounded_square)
 
 MM = 1e-3
 DEFAULT = AxisLimits.from_registers(axis_defaults())
@@ -279,3 +280,76 @@ def test_refused_segment_over_max_acceleration():
     r = reason('x', [1.0, 2.0], [[1 * MM], [11 * MM]], [[0.0], [0.0]], limits=gentle)
     assert 'between point 0 (t=1 s) and point 1 (t=2 s)' in r
     assert abs(float(r.split()[2])) == pytest.approx(60 * MM, abs=1e-12)
+
+
+# ------------------------------------------------------------------------ example paths
+
+def test_circle_radius_speed_rest_and_limits():
+    pts = circle((0.05, -0.02), 10 * MM, 20 * MM)
+    assert pts.positions[0] == pytest.approx([0.06, -0.02], abs=1e-15)
+    start = {'x': AxisState(0.06), 'y': AxisState(-0.02)}
+    traj = Trajectory.build('xy', *pts, start=start, limits=LIMITS)
+    assert traj.kind == 'quintic'
+    # one turn of 62.83 mm at 20 mm/s plus half of each 0.5 s ramp: 3.1416 + 0.5 s
+    assert traj.duration == pytest.approx(2 * math.pi * 10 * MM / (20 * MM) + 0.5, abs=1e-12)
+    t = np.arange(0.0, traj.duration, 1e-3)
+    p, v, a = traj.sample(t)
+    radius = np.hypot(p[:, 0] - 0.05, p[:, 1] + 0.02)
+    assert np.abs(radius - 10 * MM).max() < 1e-9          # on the circle between points too
+    speed = np.hypot(*v.T)
+    middle = (t > 0.5) & (t < traj.duration - 0.5)
+    assert speed[middle] == pytest.approx(20 * MM, abs=1e-9)
+    assert speed.max() < 20 * MM + 1e-9
+    # starts and ends at rest, where it started
+    assert np.abs(np.concatenate(traj.sample(0.0)[1:])).max() < 1e-15
+    p_end, v_end, a_end = traj.sample(traj.duration - 1e-9)
+    assert p_end == pytest.approx([0.06, -0.02], abs=1e-12)
+    assert np.abs(v_end).max() < 1e-9 and np.abs(a_end).max() < 1e-6
+    # in the middle the acceleration is the centripetal v²/r = 40 mm/s²; acceleration has
+    # no steps (C2 quintics through exact p, v, a): 1 ms apart it moves by at most ~jerk·1 ms
+    assert np.hypot(*a[middle].T) == pytest.approx(40 * MM, abs=1e-6)
+    assert np.abs(np.diff(a, axis=0)).max() < 1e-3
+
+
+def test_circle_too_short_for_its_ramps_is_refused():
+    with pytest.raises(ValueError, match='shorter than its two speed ramps'):
+        circle((0.0, 0.0), 1 * MM, 20 * MM, turns=0.05, ramp_time=0.5)
+
+
+def test_rounded_square_stays_on_its_path():
+    pts = rounded_square((0.0, 0.0), 20 * MM, 3 * MM, 20 * MM)
+    assert pts.accelerations is None and pts.velocities is not None
+    assert pts.positions[0] == pytest.approx([0.0, -10 * MM], abs=1e-15)
+    start = {'x': AxisState(0.0), 'y': AxisState(-10 * MM)}
+    traj = Trajectory.build('xy', *pts, start=start, limits=LIMITS)
+    assert traj.kind == 'cubic'
+    t = np.arange(0.0, traj.duration, 1e-3)
+    p, v, _ = traj.sample(t)
+    # The exact path, finely: straight runs of 14 mm on the lines x, y = ±10 mm, quarter
+    # circles of 3 mm around (±7, ±7) mm.
+    phi = np.linspace(0, math.pi / 2, 2001)
+    arc = 3 * MM * np.stack([np.cos(phi), np.sin(phi)], axis=1) + 7 * MM
+    run = np.stack([np.full(2001, 10 * MM), np.linspace(-7 * MM, 7 * MM, 2001)], axis=1)
+    quarter = np.vstack([run, arc])
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+    path = np.vstack([quarter @ np.linalg.matrix_power(turn, k).T for k in range(4)]
+                     + [run[:1]])
+    # every sampled command within 5 nm of the exact square (the fine polyline's own chord
+    # error on the arcs is 3 mm · (π/4000)²/8 = 0.2 nm)
+    assert contour_error(path, p).max() < 5e-9
+    assert np.hypot(*v.T).max() == pytest.approx(20 * MM, abs=1e-9)
+    assert traj.position_extrema()['x'] == pytest.approx((-10 * MM, 10 * MM), abs=1e-9)
+    assert np.abs(traj.sample(traj.duration)[1]).max() == 0.0
+
+
+def test_contour_error_is_the_distance_to_the_polyline():
+    path = np.array([[0.0, 0.0], [10 * MM, 0.0], [10 * MM, 10 * MM]])
+    actual = np.array([[5 * MM, 3e-6],        # 3 µm beside the first line
+                       [11 * MM, 5 * MM],     # 1 mm outside the second
+                       [13 * MM, -4 * MM],    # beyond the corner: 5 mm from the vertex
+                       [-1 * MM, 0.0]])       # before the start: 1 mm from it
+    assert contour_error(path, actual) == pytest.approx([3e-6, 1 * MM, 5 * MM, 1 * MM],
+                                                        abs=1e-15)
+    # a path folding back on itself: the nearer of the two passes counts
+    hairpin = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1 * MM], [0.0, 1 * MM]])
+    assert contour_error(hairpin, [[0.5, 0.4 * MM]]) == pytest.approx([0.4 * MM], abs=1e-15)
