@@ -17,7 +17,7 @@ from conftest import REPO_ROOT
 # identification).
 CORE = ['axis', 'backlash', 'deadband', 'diagnostics', 'dual_loop', 'excitation',
         'feedback_sync', 'harness', 'identify', 'notch', 'plant', 'profile', 'registers',
-        'scenarios', 'servo_law', 'servo_loop', 'settling', 'tuning']
+        'scenarios', 'servo_law', 'servo_loop', 'settling', 'trajectory', 'tuning']
 # The ROS shell and the tools around it: nodes, parameters, clients, processes, recording.
 # These may import ROS (some do only inside functions).
 SHELL = ['bag_repair', 'benchmark', 'client', 'controller_node', 'demo', 'lockstep',
