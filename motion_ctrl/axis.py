@@ -277,6 +277,11 @@ class Axis:
             return f'{self.name}: {what} refused: a {kind} is in progress (wait for MOTION_DONE)'
         return None
 
+    def start_refusal(self, what: str):
+        """Why a new motion (`what`: 'target', 'jog', 'trajectory') cannot start now, or None:
+        a fault, an open loop, a STOP or ESTOP still decelerating."""
+        return self._refuse_unless_ready() or self._refuse_below_stop(what)
+
     def _cancel(self, why: str) -> None:
         """What was scheduled for later is void (see the module docstring)."""
         self.command_epoch += 1
@@ -347,7 +352,7 @@ class Axis:
         in the user frame. The trajectory was checked as a whole (motion_ctrl.trajectory); the
         soft limits are checked here again, as for any target. Settling, corrections, stops and
         faults treat it as a move to its last point."""
-        reason = self._refuse_unless_ready() or self._refuse_below_stop('trajectory')
+        reason = self.start_refusal('trajectory')
         if reason:
             return False, reason
         lo, hi = path.extrema

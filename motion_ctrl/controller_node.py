@@ -14,12 +14,16 @@ drive synchronised to its fieldbus cycle): each new sample, stamped in sim time,
 the command carries the sample's stamp. With the plant in lockstep this makes a scenario
 deterministic. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
 clock is applied at the first tick at or after that stamp (a coordinated start of several axes,
-or a move at an exact sim time); other targets apply at once.
+or a move at an exact sim time); other targets apply at once. A `joint_trajectory`
+(trajectory_msgs/JointTrajectory) is checked as a whole and run on all its axes on one time base
+(`ServoLoop.trajectory`, PMAC PVT); its header stamp schedules it the same way.
 """
 from __future__ import annotations
 
 import math
+import queue
 import signal
+import threading
 import sys
 import time
 
@@ -29,6 +33,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
 from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
 from diagnostic_msgs.msg import DiagnosticArray
 
 import msg_defs as md
@@ -46,6 +51,13 @@ STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
 # at 100 Hz took the loop from 995 to ~500 Hz). 64 KiB holds hundreds of axes.
 MAX_TARGET_BYTES = 65536
 MAX_TARGET_NAMES = 256
+# A trajectory is checked in the callback, between two ticks: ~16 µs per point with
+# accelerations (quintic: its velocity and acceleration extrema are roots of quartics and
+# cubics), ~4 µs without (2 axes, this machine). Longer would hold the servo loop past the
+# amplifier's 10 ms command watchdog; a longer path is sent in parts, each a new trajectory
+# from where the last one is.
+MAX_TRAJECTORY_POINTS = {'with accelerations': 400, 'without': 1500}
+MAX_TRAJECTORY_BYTES = 1 << 20
 REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second, with a count
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
 # s: the longest a stopping controller waits for its last command (0 V) to be acknowledged
@@ -91,6 +103,14 @@ class ControllerNode(ros_params.RegisterNode):
             self._on_target_position, 'target_position'), 10, raw=True)
         self.create_subscription(JointState, md.TARGET_VELOCITY, self._raw_target(
             self._on_target_velocity, 'target_velocity'), 10, raw=True)
+        # Trajectories are decoded, checked and built on a thread of their own in real time
+        # (rclpy's decoding of 400 points alone takes ~5 ms), and started by the next tick.
+        self.trajectories: queue.SimpleQueue = queue.SimpleQueue()     # raw messages in
+        self.prepared: queue.SimpleQueue = queue.SimpleQueue()         # built, to start
+        self.create_subscription(JointTrajectory, md.JOINT_TRAJECTORY, self._on_raw_trajectory,
+                                 10, raw=True)
+        if not self.sim_time:
+            threading.Thread(target=self._prepare_loop, name='trajectories', daemon=True).start()
         for a in self.axis_names:
             self._make_services(a)
 
@@ -163,16 +183,16 @@ class ControllerNode(ros_params.RegisterNode):
         entry[0], entry[1] = now, 0
         self.get_logger().warning(text + more)
 
-    def _raw_target(self, callback, what: str):
+    def _raw_target(self, callback, what: str, kind=JointState, max_bytes=MAX_TARGET_BYTES):
         def on_raw(data: bytes) -> None:
-            if len(data) > MAX_TARGET_BYTES:
+            if len(data) > max_bytes:
                 self._refused(what + ':size', f'{what} refused: a {len(data)}-byte message '
-                              f'(at most {MAX_TARGET_BYTES})')
+                              f'(at most {max_bytes})')
                 return
             try:
-                msg = deserialize_message(data, JointState)
+                msg = deserialize_message(data, kind)
             except Exception as e:           # (rclpy raises its own types for a bad CDR)
-                self._refused(what, f'{what} refused: not a JointState ({e})')
+                self._refused(what, f'{what} refused: not a {kind.__name__} ({e})')
                 return
             callback(msg)
         return on_raw
@@ -206,6 +226,56 @@ class ControllerNode(ros_params.RegisterNode):
         for a, reason in self.loop.jog(jogs):
             self._refused(f'jog:{a}', f'target_velocity refused: {reason}')
 
+    def _on_raw_trajectory(self, data: bytes) -> None:
+        if len(data) > MAX_TRAJECTORY_BYTES:
+            self._refused('trajectory:size', f'joint_trajectory refused: a {len(data)}-byte '
+                          f'message (at most {MAX_TRAJECTORY_BYTES})')
+            return
+        if self.sim_time:                   # deterministic: prepared and started at once
+            job = self._prepare(data)
+            if job is not None:
+                self._start_trajectory(*job)
+            return
+        self.trajectories.put(data)
+
+    def _prepare_loop(self) -> None:
+        while True:
+            job = self._prepare(self.trajectories.get())
+            if job is not None:
+                self.prepared.put(job)
+
+    def _prepare(self, data: bytes):
+        """(prepared or refusal, stamp [s]) of a raw JointTrajectory, or None when it was
+        refused already (logged)."""
+        try:
+            msg = deserialize_message(data, JointTrajectory)
+        except Exception as e:               # (rclpy raises its own types for a bad CDR)
+            self._refused('trajectory', f'joint_trajectory refused: not a JointTrajectory ({e})')
+            return None
+        kind = 'with accelerations' if any(p.accelerations for p in msg.points) else 'without'
+        most = MAX_TRAJECTORY_POINTS[kind]
+        if len(msg.points) > most or len(msg.joint_names) > MAX_TARGET_NAMES:
+            self._refused('trajectory:size', f'joint_trajectory refused: {len(msg.points)} '
+                          f'points for {len(msg.joint_names)} axes (at most {most} points '
+                          f'{kind}: send a longer path in parts)')
+            return None
+        spec = md.read_joint_trajectory(msg)
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        return self.loop.prepare(spec), stamp
+
+    def _start_trajectory(self, job, stamp: float) -> None:
+        """On the servo thread: start (or schedule) a prepared trajectory."""
+        if isinstance(job, str):
+            self._refused('trajectory', f'joint_trajectory refused: {job}')
+            return
+        now = self.get_clock().now().nanoseconds * 1e-9
+        known = [a for a in job.spec['names'] if a in self.axes]
+        self._log(self.loop.unschedule(known, 'a trajectory'))
+        reason = self.loop.trajectory(job, stamp if 0.0 < stamp - now <= MAX_SCHEDULE else None,
+                                      now)
+        if reason:
+            self._refused('trajectory', f'joint_trajectory refused: {reason}')
+
     def _make_services(self, a: str) -> None:
         axis = self.axes[a]
 
@@ -238,6 +308,8 @@ class ControllerNode(ros_params.RegisterNode):
         else:
             stamp = stamp_msg
         now = stamp.sec + stamp.nanosec * 1e-9
+        while not self.prepared.empty():
+            self._start_trajectory(*self.prepared.get_nowait())
         tick = self.loop.tick(now)
         if tick is None:
             return                       # sim time paused or stepped back

@@ -1,11 +1,13 @@
-"""In-process harness: one controller axis core coupled to one plant core, stepped in lockstep.
+"""In-process harness: controller axis cores coupled to plant cores, stepped in lockstep.
 
 Each servo tick the controller's tick (`ServoLoop`, the same object the controller node drives,
 in its sim-time form: each encoder sample is one tick) reads the plant's encoders and computes
 the command, and the plant integrates one servo period with that command held (zero-order hold,
 like a DAC). An optional
 transport delay of whole ticks models the encoder → command path over DDS. No ROS, no clocks:
-a scenario is deterministic and runs many times faster than real time.
+a scenario is deterministic and runs many times faster than real time. Several axes
+(`axes=('x', 'y')`: a slide each, the same registers) run on the one ServoLoop, as the node's do;
+`axis`, `plant` and the trace are the first one's.
 """
 from __future__ import annotations
 
@@ -34,30 +36,36 @@ class Trace:
 
 class Harness:
     def __init__(self, registers: dict | None = None, plant: dict | None = None,
-                 servo_period: float = 1e-3, latency_ticks: int = 0, record: bool = True):
+                 servo_period: float = 1e-3, latency_ticks: int = 0, record: bool = True,
+                 axes=('x',)):
         self.T = servo_period
-        self.axis = Axis('x', registers, servo_period, record_events=True)
-        self.loop = ServoLoop({'x': self.axis}, {'x': self.axis.r}, servo_period,
+        self.axes = {a: Axis(a, registers, servo_period, record_events=True) for a in axes}
+        self.loop = ServoLoop(self.axes, {a: x.r for a, x in self.axes.items()}, servo_period,
                               float(CONTROLLER_GLOBAL['feedback_timeout'].default),  # type: ignore[arg-type]
                               sim_time=True)
-        self.plant = SlidePlant(**(plant or {}))
-        self.delay = deque([0.0] * latency_ticks)
+        self.plants = {a: SlidePlant(**(plant or {})) for a in axes}
+        self.axis, self.plant = self.axes[axes[0]], self.plants[axes[0]]
+        self.delay = {a: deque([0.0] * latency_ticks) for a in axes}
         self.trace = Trace() if record else None
         self.ticks = 0
-        self.axis.home(*self.plant.encoder_counts())
+        for a, x in self.axes.items():
+            x.home(*self.plants[a].encoder_counts())
 
     @property
     def time(self) -> float:
         return self.ticks * self.T
 
     def tick(self, disturbance=None) -> None:
-        m, l = self.plant.encoder_counts()
         now = self.ticks * self.T
-        self.loop.feedback('x', m, l, now)
+        for a, plant in self.plants.items():
+            motor, load = plant.encoder_counts()
+            self.loop.feedback(a, motor, load, now)
         tick = self.loop.tick(now)
-        out = tick.outputs[0] if tick is not None and tick.names else 0.0
-        self.delay.append(out)
-        self.plant.step(self.delay.popleft(), self.T)
+        outputs = dict(zip(tick.names, tick.outputs)) if tick is not None else {}
+        for a, plant in self.plants.items():
+            self.delay[a].append(outputs.get(a, 0.0))
+            plant.step(self.delay[a].popleft(), self.T)
+        out = outputs.get(self.axis.name, 0.0)
         self.ticks += 1
         if disturbance:
             disturbance(self)

@@ -202,6 +202,10 @@ class Profile:
         self.target = float(path.end) + self._offset
         self.target_velocity = None
 
+    def following(self, path: Path) -> bool:
+        """`path` is the segment running now (not yet ended, stopped or replaced)."""
+        return self._path is path and not self._raw_done
+
     def jog(self, velocity: float) -> None:
         """Velocity move; 0 decelerates to rest.
 

@@ -59,7 +59,7 @@ from scipy.interpolate import BPoly, CubicHermiteSpline, CubicSpline, PPoly
 from scipy.optimize import brentq
 from scipy.spatial import cKDTree
 
-__all__ = ['AxisLimits', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
+__all__ = ['AxisLimits', 'AxisPath', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
            'rounded_square', 'contour_error', 'START_TOLERANCE', 'REST_TOLERANCE',
            'LIMIT_TOLERANCE']
 
@@ -440,6 +440,14 @@ class Trajectory:
         return {n: AxisState(float(p[j]), float(v[j]), float(a[j]))
                 for j, n in enumerate(self.names)}
 
+    def paths(self) -> dict[str, AxisPath]:
+        """Per axis, its share as `Profile.follow` samples it (profile.Path). The axes of one
+        trajectory share one evaluation per servo time."""
+        shared = _LastSample(self)
+        extrema = self.position_extrema()
+        return {n: AxisPath(shared, j, extrema[n], float(self._end[j]), self.duration)
+                for j, n in enumerate(self.names)}
+
     def position_extrema(self) -> dict[str, tuple[float, float]]:
         """Per axis, (min, max) of the commanded position over the whole trajectory (exact)."""
         out = {}
@@ -447,6 +455,37 @@ class Trajectory:
             values = _candidates(pp, 0)[1]
             out[name] = (float(values.min()), float(values.max()))
         return out
+
+
+class _LastSample:
+    """The trajectory's sample at the last time asked for: every axis asks at the same time."""
+    __slots__ = ('trajectory', 't', 'values')
+
+    def __init__(self, trajectory: Trajectory):
+        self.trajectory = trajectory
+        self.t: float | None = None
+        self.values: tuple[list[float], list[float], list[float]] = ([], [], [])
+
+    def at(self, t: float) -> tuple[list[float], list[float], list[float]]:
+        if t != self.t:
+            p, v, a = self.trajectory.sample(t)
+            self.t, self.values = t, (p.tolist(), v.tolist(), a.tolist())
+        return self.values
+
+
+class AxisPath:
+    """One axis's share of a Trajectory (profile.Path): duration, end, extrema, at(t)."""
+    __slots__ = ('_shared', '_j', 'extrema', 'end', 'duration')
+
+    def __init__(self, shared: _LastSample, index: int, extrema: tuple[float, float],
+                 end: float, duration: float):
+        self._shared, self._j = shared, index
+        self.extrema, self.end, self.duration = extrema, end, duration
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        p, v, a = self._shared.at(t)
+        j = self._j
+        return p[j], v[j], a[j]
 
 
 # ------------------------------------------------------------------------- example paths

@@ -8,7 +8,8 @@ exactly up to 2**53).
 from msg_defs.status import Status
 from msg_defs.topics import (
     COMMAND, ENCODERS, JOINT_STATES, MOTOR_STATES, PLANT_STATES, REFERENCE_STATES,
-    AMPLIFIER_STATES, TARGET_POSITION, TARGET_VELOCITY, DIAGNOSTICS, CLOCK, status_topic,
+    AMPLIFIER_STATES, TARGET_POSITION, TARGET_VELOCITY, JOINT_TRAJECTORY, DIAGNOSTICS, CLOCK,
+    status_topic,
     amplifier_fault_topic, service_name,
     SERVICES, motor_joint, load_joint, split_joint,
 )
@@ -21,6 +22,7 @@ _LAZY = {
     'joint_state': 'msg_defs.joint_state', 'read_joint_state': 'msg_defs.joint_state',
     'MalformedMessage': 'msg_defs.joint_state', 'JointStateStream': 'msg_defs.joint_state',
     'Stream': 'msg_defs.joint_state',
+    'joint_trajectory': 'msg_defs.trajectory', 'read_joint_trajectory': 'msg_defs.trajectory',
 }
 
 
@@ -36,9 +38,11 @@ def __getattr__(name: str):
 
 __all__ = [
     'Status', 'COMMAND', 'ENCODERS', 'JOINT_STATES', 'MOTOR_STATES', 'PLANT_STATES',
-    'REFERENCE_STATES', 'AMPLIFIER_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY', 'DIAGNOSTICS',
+    'REFERENCE_STATES', 'AMPLIFIER_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY',
+    'JOINT_TRAJECTORY', 'DIAGNOSTICS',
     'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint',
     'load_joint', 'split_joint',
     'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'joint_state', 'read_joint_state',
-    'MalformedMessage', 'JointStateStream', 'Stream',
+    'MalformedMessage', 'JointStateStream', 'Stream', 'joint_trajectory',
+    'read_joint_trajectory',
 ]

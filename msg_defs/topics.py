@@ -2,6 +2,7 @@
 
 TARGET_POSITION = 'target_position'    # sensor_msgs/JointState -> controller, position [m]
 TARGET_VELOCITY = 'target_velocity'    # sensor_msgs/JointState -> controller, velocity [m/s]
+JOINT_TRAJECTORY = 'joint_trajectory'  # trajectory_msgs/JointTrajectory -> controller (PVT) [m]
 JOINT_STATES = 'joint_states'          # controller ->: load position/velocity, effort = output [V]
 REFERENCE_STATES = 'reference_states'  # controller ->: commanded (profile) position/velocity
 MOTOR_STATES = 'motor_states'          # controller ->: motor side in load units [m, m/s]

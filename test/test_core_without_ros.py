@@ -20,10 +20,10 @@ CORE = ['axis', 'backlash', 'deadband', 'diagnostics', 'dual_loop', 'excitation'
         'scenarios', 'servo_law', 'servo_loop', 'settling', 'trajectory', 'tuning']
 # The ROS shell and the tools around it: nodes, parameters, clients, processes, recording.
 # These may import ROS (some do only inside functions).
-SHELL = ['bag_repair', 'benchmark', 'client', 'controller_node', 'demo', 'lockstep',
+SHELL = ['bag_repair', 'benchmark', 'client', 'controller_node', 'demo', 'draw', 'lockstep',
          'plant_node', 'processes', 'record', 'report', 'ros_env', 'ros_params', 'soak',
          'visitor']
-ROS = ['rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs', 'diagnostic_msgs',
+ROS = ['rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs', 'diagnostic_msgs', 'trajectory_msgs',
        'rosgraph_msgs', 'builtin_interfaces', 'ament_index_python', 'rosbags', 'mcap']
 
 PROGRAM = textwrap.dedent('''
