@@ -23,7 +23,8 @@ CORE = ['axis', 'backlash', 'deadband', 'diagnostics', 'dual_loop', 'excitation'
 SHELL = ['bag_repair', 'benchmark', 'client', 'controller_node', 'demo', 'draw', 'lockstep',
          'plant_node', 'processes', 'record', 'report', 'ros_env', 'ros_params', 'soak',
          'visitor']
-ROS = ['rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs', 'diagnostic_msgs', 'trajectory_msgs',
+ROS = ['rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs', 'diagnostic_msgs',
+       'trajectory_msgs',
        'rosgraph_msgs', 'builtin_interfaces', 'ament_index_python', 'rosbags', 'mcap']
 
 PROGRAM = textwrap.dedent('''
