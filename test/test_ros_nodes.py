@@ -984,3 +984,43 @@ def test_nodes_stop_cleanly_on_sigint(axis, slide):
     for log in (slide.plant_log, slide.controller_log):
         text = log.text()
         assert 'Traceback' not in text and 'Error' not in text, text[-3000:]
+
+
+# -- 6. joint_trajectory (issue 16) ---------------------------------------------------------------
+def test_trajectory_over_dds_lands_and_refusals_leave_it_untouched(slide, axis):
+    """A JointTrajectory on `joint_trajectory` runs on the axis (PVT, checked as a whole on
+    the controller's trajectory thread, started by a tick); bad ones sent while it runs are
+    refused with their reason in the log and the motion goes on to MOTION_DONE at its end."""
+    from builtin_interfaces.msg import Time
+    from trajectory_msgs.msg import JointTrajectory
+    p = axis
+    pub = p.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
+    assert p.spin_until(lambda: pub.get_subscription_count() > 0, 5.0)
+    start = on_grid(p.ref_log[-1][1])
+    end = far_target(start, 0.02)
+    good = md.joint_trajectory(Time(), ['x'], [2.5, 5.0], [[(start + end) / 2], [end]],
+                               [[(end - start) * 0.3], [0.0]])
+    bad = {                                    # reason in the controller's log
+        'unknown axis': (md.joint_trajectory(Time(), ['x', 'q'], [1.0], [[end, 0.0]]),
+                         "'q' is not an axis"),
+        'NaN': (md.joint_trajectory(Time(), ['x'], [1.0], [[math.nan]]),
+                'x: point 0 position nan m is not finite'),
+        'non-increasing time': (md.joint_trajectory(Time(), ['x'], [1.0, 1.0], [[end], [end]]),
+                                'point 1: time_from_start 1 s is not after'),
+        'max_velocity': (md.joint_trajectory(Time(), ['x'], [0.1], [[start + 0.1]]),
+                         'exceeds max_velocity'),
+    }
+    mark = p.mark()
+    pub.publish(good)
+    assert p.wait_status(lambda s: s & Status.MOVING), repr(p.word)
+    for msg, _ in bad.values():          # (a refusal is logged at most once a second)
+        pub.publish(msg)
+        p.spin_until(lambda: False, 1.05)
+    assert p.spin_until(lambda: p.done_since(mark), 5.0), repr(p.word)
+    p.spin_for_messages(5)
+    assert abs(p.ref_log[-1][1] - end) < 1e-12
+    assert abs(p.load_position() - end) <= 1 * COUNT, (p.load_position() - end) / COUNT
+    text = slide.controller_log.text()
+    for case, (_, reason) in bad.items():
+        assert re.search(f'joint_trajectory refused: .*{re.escape(reason)}', text), \
+            (case, text[-2000:])
