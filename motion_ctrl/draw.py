@@ -104,9 +104,18 @@ def main(argv=None) -> int:
     ap.add_argument('--feedback', default='dual', choices=('motor', 'load', 'dual', 'sampled'))
     ap.add_argument('--friction-ff', type=float, default=0.24,
                     help='friction feedforward of both axes [V] (0.24: the slide\'s friction)')
+    ap.add_argument('--realtime-priority', type=int, default=30,
+                    help='realtime_priority of both nodes (0: normal scheduling; README Notes: '
+                         'with this example running beside them on two cores, normal '
+                         'scheduling lets the nodes wait)')
+    ap.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
+                    help='another controller parameter (repeatable), e.g. x.kp:=20000')
     ap.add_argument('-o', '--out', default=None, help='directory (default out/draw-<time>)')
     args = ap.parse_args(argv)
     shapes = [s.strip() for s in args.shapes.split(',') if s.strip()]
+    extra = dict(p.split(':=', 1) for p in args.param if ':=' in p)
+    if len(extra) != len(args.param):
+        ap.error('--param takes NAME:=VALUE')
     if not shapes or any(s not in ('circle', 'square') for s in shapes):
         ap.error(f'--shapes: circle and/or square, got {args.shapes!r}')
     domain = ros_env.private_domain()
@@ -124,9 +133,11 @@ def main(argv=None) -> int:
     axes = '[' + ', '.join(f"'{a}'" for a in AXES) + ']'     # quoted: y is a YAML boolean
     ctrl = {'axes': axes} | {f'{a}.{k}': v for a in AXES for k, v in
                              (('feedback', args.feedback), ('friction_ff', args.friction_ff))}
+    rt = {'realtime_priority': args.realtime_priority}
+    ctrl |= rt | extra
     print(f'draw: starting plant and controller for axes x, y (ROS_DOMAIN_ID={domain}, logs in '
           f'{out})')
-    nodes = start_slide(ctrl, {'axes': axes}, log_dir=out)
+    nodes = start_slide(ctrl, {'axes': axes} | rt, log_dir=out)
     rclpy.init()
     client = SlideClient(axes=AXES)
     pub = client.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
