@@ -34,6 +34,7 @@ EXECUTABLES = {
     'record': 'motion_ctrl.record:main',
     'report': 'motion_ctrl.report:main',
     'soak': 'motion_ctrl.soak:main',
+    'calibrate': 'motion_ctrl.calibrate:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')
