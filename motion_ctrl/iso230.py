@@ -63,8 +63,8 @@ def plan_targets(start: float, end: float, count: int) -> np.ndarray:
     different r_i at each target (random within the interval); a deterministic low-discrepancy
     sequence is used instead (golden-ratio steps, r_i within ±p/4) so a run repeats exactly and
     the intervals take three or four different lengths between p/2 and 3p/2 (the three-gap
-    theorem) in no regular order: a screw error of any period is sampled at many phases. The two ends are kept exactly: the tables must cover
-    the travel the user asked for.
+    theorem) in no regular order: a screw error of any period is sampled at many phases. The
+    two ends are kept exactly: the tables must cover the travel the user asked for.
     """
     if not (math.isfinite(start) and math.isfinite(end) and end > start):
         raise ValueError(f'the travel must run from a lower to a higher position, got '
