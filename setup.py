@@ -35,6 +35,7 @@ EXECUTABLES = {
     'report': 'motion_ctrl.report:main',
     'soak': 'motion_ctrl.soak:main',
     'draw': 'motion_ctrl.draw:main',
+    'calibrate': 'motion_ctrl.calibrate:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

@@ -21,7 +21,8 @@ FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
 
 
 class SlideClient(Node):
-    def __init__(self, axes=('x',), name='slide_client', context=None, services=False):
+    def __init__(self, axes=('x',), name='slide_client', context=None, services=False,
+                 truth=True):
         super().__init__(name, context=context)
         # (The client shares two cores with two 1 kHz nodes: the lighter executor leaves them
         # more room.)
@@ -33,7 +34,12 @@ class SlideClient(Node):
         self.truth = None          # latest plant_states {joint: position}
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
-        self.create_subscription(JointState, md.PLANT_STATES, self._on_truth, md.SERVO_READ_QOS)
+        # truth=False: a tool that must work against real hardware (calibrate) neither reads
+        # the simulation's ground truth nor waits for it.
+        self.wants_truth = truth
+        if truth:
+            self.create_subscription(JointState, md.PLANT_STATES, self._on_truth,
+                                     md.SERVO_READ_QOS)
         for a in self.axes:
             self.create_subscription(UInt32, md.status_topic(a),
                                      lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
@@ -97,7 +103,7 @@ class SlideClient(Node):
         """What wait_ready still waits for ('' when ready)."""
         if self.pub_target.get_subscription_count() == 0:
             return 'no controller subscribed to target_position yet'
-        if self.truth is None:
+        if self.wants_truth and self.truth is None:
             return 'no plant_states received yet'
         words = {a: s for a, s in self.status.items() if s is None or not s & Status.ENABLED}
         if words:

@@ -16,11 +16,12 @@ from conftest import REPO_ROOT
 # tick, the plant physics, and what is built on them in process (harness, tuning, scenarios,
 # identification).
 CORE = ['axis', 'backlash', 'deadband', 'diagnostics', 'dual_loop', 'excitation',
-        'feedback_sync', 'harness', 'identify', 'notch', 'plant', 'profile', 'registers',
-        'scenarios', 'servo_law', 'servo_loop', 'settling', 'trajectory', 'tuning']
+        'feedback_sync', 'harness', 'identify', 'iso230', 'notch', 'plant', 'profile',
+        'registers', 'scenarios', 'servo_law', 'servo_loop', 'settling', 'trajectory', 'tuning']
 # The ROS shell and the tools around it: nodes, parameters, clients, processes, recording.
 # These may import ROS (some do only inside functions).
-SHELL = ['bag_repair', 'benchmark', 'client', 'controller_node', 'demo', 'draw', 'lockstep',
+SHELL = ['bag_repair', 'benchmark', 'calibrate', 'client', 'controller_node', 'demo', 'draw',
+         'lockstep',
          'plant_node', 'processes', 'record', 'report', 'ros_env', 'ros_params', 'soak',
          'visitor']
 ROS = ['rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs', 'diagnostic_msgs',
