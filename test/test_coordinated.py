@@ -98,7 +98,7 @@ BAD = {
 def _slow_line(start, dx=0.004, seconds=2.0) -> tj.Points:
     times = [seconds / 2, seconds]
     pos = [[start['x'] + dx / 2, start['y']], [start['x'] + dx, start['y']]]
-    return tj.Points(times, pos, None, None)
+    return tj.Points(np.array(times), np.array(pos), None, None)
 
 
 @pytest.mark.parametrize('case', list(BAD) + ['max_velocity', 'max_acceleration'])
@@ -117,10 +117,12 @@ def test_refusals_name_the_reason_and_leave_the_running_motion_untouched(case):
         h.run(0.5)
         if send_bad:
             if case == 'max_velocity':        # 0.2 m in 0.5 s: 0.6 m/s peak, limit 0.1
-                p = tj.Points([0.5], [[start['x'] + 0.2, start['y']]], [[0.0, 0.0]], None)
+                p = tj.Points(np.array([0.5]), np.array([[start['x'] + 0.2, start['y']]]),
+                              np.zeros((1, 2)), None)
                 bad, expect = _spec(p), 'exceeds max_velocity 0.1 m/s'
             elif case == 'max_acceleration':  # 1 mm in 20 ms: 15 m/s², limit 1.5
-                p = tj.Points([0.02], [[start['x'] + 0.001, start['y']]], [[0.0, 0.0]], None)
+                p = tj.Points(np.array([0.02]), np.array([[start['x'] + 0.001, start['y']]]),
+                              np.zeros((1, 2)), None)
                 bad, expect = _spec(p), 'exceeds max_acceleration 1.5 m/s²'
             else:
                 edit, expect = BAD[case]
@@ -140,7 +142,8 @@ def test_a_new_trajectory_replaces_the_running_one_without_a_jump(xy):
     assert h.loop.trajectory(_spec(_slow_line(start, dx=0.004, seconds=2.0))) is None
     h.run(0.7)
     now = _start(h)
-    back = tj.Points([1.0], [[now['x'] - 0.002, now['y']]], [[0.0, 0.0]], None)
+    back = tj.Points(np.array([1.0]), np.array([[now['x'] - 0.002, now['y']]]),
+                     np.zeros((1, 2)), None)
     cmd, vel = [], []
     for k in range(200):
         if k == 100:
