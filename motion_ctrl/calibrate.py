@@ -103,6 +103,26 @@ class AxisUnderTest:
             raise CalibrationError(f'move to {position:.6f} m: no MOTION_DONE within '
                                    f'{timeout:g} s (status {Status(word or 0)!r})')
 
+    def approach(self, position: float, direction: int, distance: float, duration: float,
+                 timeout: float) -> None:
+        """Reach `position` moving in `direction` (+1/-1) the way a repeatable reading needs:
+        a move to `distance` short of it, then the last `distance` as a slow PVT segment of
+        `duration` s (joint_trajectory, ending at rest). A motor loop that arrives at speed
+        overshoots by an amount that varies with the servo latency (over DDS, 0-2 ms) and the
+        slide, carried along, stays there across the backlash: harness, 2 ticks of latency,
+        six approaches land 6-16 counts long; with a 0.5 mm, 0.5 s final segment 1.6-1.9.
+        `distance` 0: a plain move."""
+        from msg_defs.status import Status
+        if distance > 0.0:
+            self.move(position - direction * distance, timeout)
+            if self.client.follow([self.axis], [duration], [[position]],
+                                  timeout=timeout) is not None:
+                return
+            word = self.client.status[self.axis]
+            raise CalibrationError(f'final approach to {position:.6f} m: no MOTION_DONE '
+                                   f'(status {Status(word or 0)!r})')
+        self.move(position, timeout)
+
     def read_load(self, dwell: int, average: int, timeout: float = 10.0) -> float:
         """The load encoder at rest: `dwell` joint_states samples skipped after MOTION_DONE,
         the mean of the next `average` [m]. Counted in samples, not seconds, so the reading is
@@ -124,13 +144,18 @@ class AxisUnderTest:
 
 
 def run_test(axis: AxisUnderTest, targets, cycles: int, overtravel: float, dwell: int,
-             average: int, move_timeout: float = 10.0, progress=None) -> iso230.Iso230:
-    """The ISO 230-2 linear cycle (iso230.approach_sequence) on the axis as it is configured;
-    returns the evaluation."""
+             average: int, move_timeout: float = 10.0, progress=None,
+             approach: tuple[float, float] = (0.0, 0.0)) -> iso230.Iso230:
+    """The ISO 230-2 linear cycle (iso230.approach_sequence) on the axis as it is configured,
+    each target reached with `approach` = (distance [m], duration [s]) of slow final segment
+    (AxisUnderTest.approach); returns the evaluation."""
     readings = {}
     steps = iso230.approach_sequence(targets, cycles, overtravel)
     for k, step in enumerate(steps):
-        axis.move(step.position, move_timeout)
+        if step.target is None or approach[0] <= 0.0:
+            axis.move(step.position, move_timeout)
+        else:
+            axis.approach(step.position, step.direction, *approach, move_timeout)
         if step.target is not None:
             readings[(step.target, step.direction, step.cycle)] = \
                 axis.read_load(dwell, average) - step.position
@@ -200,8 +225,9 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
               'leadscrew_table': [], 'backlash_table': []})
     applied = False
     try:
+        approach = (args.approach, args.approach_time)
         before = run_test(axis, targets, args.cycles, args.overtravel, args.dwell, args.average,
-                          args.move_timeout, progress('before'))
+                          args.move_timeout, progress('before'), approach)
         seconds['before'] = time.monotonic() - t0
         tables = iso230.build_tables(before, args.table_tolerance / cpm, args.spacing)
         header = (f'motion_ctrl calibrate: ISO 230-2 test of axis {args.axis} on feedback: motor, '
@@ -226,7 +252,7 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
             applied = True
             t1 = time.monotonic()
             after = run_test(axis, targets, args.cycles, args.overtravel, args.dwell,
-                             args.average, args.move_timeout, progress('after'))
+                             args.average, args.move_timeout, progress('after'), approach)
             seconds['after'] = time.monotonic() - t1
     finally:
         restore = {k: v for k, v in saved.items() if not (applied and k in COMP_REGISTERS)}
@@ -270,6 +296,11 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--overtravel', type=float, default=DEFAULT_OVERTRAVEL,
                     help='approach margin beyond the first target of each direction [m] '
                     '(default 0.001)')
+    ap.add_argument('--approach', type=float, default=0.0005,
+                    help='each target\'s final approach: this distance [m] as a slow PVT '
+                    'segment on joint_trajectory (default 0.0005; 0: plain moves)')
+    ap.add_argument('--approach-time', type=float, default=0.5,
+                    help='duration of that final segment [s] (default 0.5)')
     ap.add_argument('--dwell', type=int, default=50,
                     help='joint_states samples skipped after MOTION_DONE (default 50)')
     ap.add_argument('--average', type=int, default=50,

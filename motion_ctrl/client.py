@@ -31,6 +31,7 @@ class SlideClient(Node):
         self.axes = list(axes)
         self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
         self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
+        self.pub_trajectory = None       # made by the first follow()
         self.truth = None          # latest plant_states {joint: position}
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
@@ -133,18 +134,32 @@ class SlideClient(Node):
         """
         msg = md.joint_state(self.get_clock().now().to_msg(), list(targets),
                              list(targets.values()))
-        marks = {a: len(self.status_log[a]) for a in targets}
+        return self._send_and_wait(self.pub_target, msg, list(targets), timeout)
+
+    def follow(self, names, times, positions, velocities=None, timeout: float = 5.0):
+        """Send a joint_trajectory (starting now) and wait as `move` does; returns as `move`."""
+        if self.pub_trajectory is None:
+            from trajectory_msgs.msg import JointTrajectory
+            self.pub_trajectory = self.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
+            self.spin_until(lambda: self.pub_trajectory.get_subscription_count() > 0, 5.0)
+        from builtin_interfaces.msg import Time
+        msg = md.joint_trajectory(Time(), names, times, positions, velocities)
+        return self._send_and_wait(self.pub_trajectory, msg, list(names),
+                                   max(times) + timeout)
+
+    def _send_and_wait(self, publisher, msg, axes: list, timeout: float):
+        marks = {a: len(self.status_log[a]) for a in axes}
         t0 = time.monotonic()
-        self.pub_target.publish(msg)
+        publisher.publish(msg)
 
         def faulted():
-            return any(w & FAULTS for a in targets for _, w in self.status_log[a][marks[a]:])
+            return any(w & FAULTS for a in axes for _, w in self.status_log[a][marks[a]:])
         if not self.spin_until(
-                lambda: faulted() or all(self.move_done(a, marks[a]) for a in targets),
+                lambda: faulted() or all(self.move_done(a, marks[a]) for a in axes),
                 timeout) or faulted():
             return None
         last = max(next(t for t, w in reversed(self.status_log[a]) if w & Status.MOTION_DONE)
-                   for a in targets)
+                   for a in axes)
         return last - t0
 
     def load_position(self, axis='x') -> float:

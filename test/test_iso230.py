@@ -212,12 +212,21 @@ class HarnessAxis:
     """calibrate.AxisUnderTest's interface on the in-process harness (no ROS): moves wait for
     MOTION_DONE, readings are the linear encoder's counts at rest."""
 
-    def __init__(self, registers, plant=None):
+    def __init__(self, registers, plant=None, latency_ticks=0):
         from motion_ctrl.harness import Harness
-        self.h = Harness(registers, plant, record=False)
+        self.h = Harness(registers, plant, record=False, latency_ticks=latency_ticks)
 
     def move(self, position, timeout):
         assert self.h.move(position, timeout) is not None
+
+    def approach(self, position, direction, distance, duration, timeout):
+        from msg_defs.status import Status
+        self.move(position - direction * distance, timeout)
+        spec = {'names': ['x'], 'times': [duration], 'positions': [[position]],
+                'velocities': [], 'accelerations': []}
+        assert self.h.loop.trajectory(spec) is None
+        self.h.tick()
+        assert self.h.run(duration + timeout, until=lambda h: h.axis.status & Status.MOTION_DONE)
 
     def read_load(self, dwell, average):
         self.h.run(dwell * 0.001)
@@ -228,11 +237,33 @@ class HarnessAxis:
         return float(np.mean(values))
 
 
-def iso_run(tables=None, plant=None, targets=None):
+def iso_run(tables=None, plant=None, targets=None, latency_ticks=0, approach=(0.0, 0.0)):
     from motion_ctrl.calibrate import run_test
     registers = dict(feedback='motor') | (tables.registers('_') if tables else {})
     registers = {k.removeprefix('_.'): v for k, v in registers.items()}
-    return run_test(HarnessAxis(registers, plant), targets, 5, 0.001, 20, 20)
+    return run_test(HarnessAxis(registers, plant, latency_ticks), targets, 5, 0.001, 20, 20,
+                    approach=approach)
+
+
+@pytest.mark.timeout(300)
+def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
+    """Two ticks of servo latency (DDS: 0-2 ms) leave the motor loop underdamped: a target
+    reached at speed is overshot by a varying amount and the slide stays there across the
+    backlash, so the readings scatter (unidirectional repeatability 4s of many counts).
+    calibrate's final approach (0.5 mm as a 0.5 s PVT segment) takes the scatter out, and
+    the tables from such a run then work."""
+    count = 2.54e-6
+    targets = iso230.plan_targets(0.0127, 0.0508, 5)
+    plain = iso_run(targets=targets, latency_ticks=2)
+    slow = iso_run(targets=targets, latency_ticks=2, approach=(0.0005, 0.5))
+    def rep(r):                                         # unidirectional, 4 s
+        return max(r.R_up, r.R_down) / count
+    print(f'R↑/R↓ plain {rep(plain):.2f}, with the final approach {rep(slow):.2f} counts')
+    assert rep(plain) > 10 and rep(slow) <= 3       # (4s of readings a count apart: ~2)
+    tables = iso230.build_tables(slow, 0.25 * count)
+    after = iso_run(tables, targets=targets, latency_ticks=2, approach=(0.0005, 0.5))
+    assert after.B / count <= 2 and after.E / count <= 3, iso230.format_report(
+        {'before': slow, 'after': after}, 1 / count)
 
 
 @pytest.mark.timeout(300)
