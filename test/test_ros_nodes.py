@@ -967,25 +967,6 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis, slow_watchdog):
     assert int(axis_values['status'], 16) & Status.ENABLED, axis_values
 
 
-# -- 5. clean stop (last: it ends the module's nodes) ----------------------------------------------
-def test_nodes_stop_cleanly_on_sigint(axis, slide):
-    """SIGINT (Ctrl-C) ends both nodes with exit code 0 and no traceback in their output.
-    The plant goes first: its encoder stream stops, and the controller's watchdog opens the
-    loop (FEEDBACK_FAULT, output 0) and says so in its log. SIGTERM is covered in
-    test_ros_lifecycle.py."""
-    p = axis
-    codes = {'plant': slide.plant.stop()}
-    assert p.wait_status(lambda s: s & Status.FEEDBACK_FAULT and not s & Status.ENABLED,
-                         2.0), repr(p.word)
-    assert wait_log(p, slide.controller_log, r'x: FEEDBACK_FAULT: no new encoder sample', 1)
-    assert _efforts_now(p) == {0.0}
-    codes['controller'] = slide.controller.stop()
-    assert codes == {'plant': 0, 'controller': 0}, codes
-    for log in (slide.plant_log, slide.controller_log):
-        text = log.text()
-        assert 'Traceback' not in text and 'Error' not in text, text[-3000:]
-
-
 # -- 6. joint_trajectory (issue 16) ---------------------------------------------------------------
 def test_trajectory_over_dds_lands_and_refusals_leave_it_untouched(slide, axis):
     """A JointTrajectory on `joint_trajectory` runs on the axis (PVT, checked as a whole on
@@ -1024,3 +1005,22 @@ def test_trajectory_over_dds_lands_and_refusals_leave_it_untouched(slide, axis):
     for case, (_, reason) in bad.items():
         assert re.search(f'joint_trajectory refused: .*{re.escape(reason)}', text), \
             (case, text[-2000:])
+
+
+# -- 5. clean stop (last: it ends the module's nodes) ----------------------------------------------
+def test_nodes_stop_cleanly_on_sigint(axis, slide):
+    """SIGINT (Ctrl-C) ends both nodes with exit code 0 and no traceback in their output.
+    The plant goes first: its encoder stream stops, and the controller's watchdog opens the
+    loop (FEEDBACK_FAULT, output 0) and says so in its log. SIGTERM is covered in
+    test_ros_lifecycle.py."""
+    p = axis
+    codes = {'plant': slide.plant.stop()}
+    assert p.wait_status(lambda s: s & Status.FEEDBACK_FAULT and not s & Status.ENABLED,
+                         2.0), repr(p.word)
+    assert wait_log(p, slide.controller_log, r'x: FEEDBACK_FAULT: no new encoder sample', 1)
+    assert _efforts_now(p) == {0.0}
+    codes['controller'] = slide.controller.stop()
+    assert codes == {'plant': 0, 'controller': 0}, codes
+    for log in (slide.plant_log, slide.controller_log):
+        text = log.text()
+        assert 'Traceback' not in text and 'Error' not in text, text[-3000:]
