@@ -296,11 +296,11 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--overtravel', type=float, default=DEFAULT_OVERTRAVEL,
                     help='approach margin beyond the first target of each direction [m] '
                     '(default 0.001)')
-    ap.add_argument('--approach', type=float, default=0.0005,
+    ap.add_argument('--approach', type=float, default=0.0002,
                     help='each target\'s final approach: this distance [m] as a slow PVT '
-                    'segment on joint_trajectory (default 0.0005; 0: plain moves)')
-    ap.add_argument('--approach-time', type=float, default=0.5,
-                    help='duration of that final segment [s] (default 0.5)')
+                    'segment on joint_trajectory (default 0.0002; 0: plain moves)')
+    ap.add_argument('--approach-time', type=float, default=0.2,
+                    help='duration of that final segment [s] (default 0.2)')
     ap.add_argument('--dwell', type=int, default=50,
                     help='joint_states samples skipped after MOTION_DONE (default 50)')
     ap.add_argument('--average', type=int, default=50,
@@ -336,6 +336,9 @@ def parser() -> argparse.ArgumentParser:
 # up for more than the default 20 ms feedback_timeout (FEEDBACK_FAULT, loop opened, test lost);
 # the spawned controller watches its feedback as the DDS tests do (test/conftest.py,
 # slow_watchdog). A tick without a new sample holds the output, so nothing winds up meanwhile.
+# (Real-time priority for the nodes was tried: with this tool's 1 kHz joint_states reader at
+# normal priority beside them on two cores, their sends waited on its shared-memory port:
+# worse. README Notes.)
 SPAWN_CONTROLLER = {'feedback_timeout': '1.5'}
 
 
@@ -383,8 +386,8 @@ def main(argv=None) -> int:
     # The nodes first, then this participant (as the demo): a client that was there before
     # the nodes started saw the first move end in FOLLOWING_ERROR_FATAL, 3 runs of 3 (not
     # understood; README Notes). Its readers joining a running controller can stall the
-    # controller's publishers for a moment (Fast DDS port health check): the spawned controller
-    # has a wide feedback_timeout for that (SPAWN_CONTROLLER).
+    # controller's publishers for a moment (a newcomer's shared-memory port, README Notes): the
+    # spawned controller has a wide feedback_timeout for that (SPAWN_CONTROLLER).
     nodes = _spawn(args, out) if args.spawn else ()
     rclpy.init()
     client = SlideClient(axes=(args.axis,), name='calibrate', truth=False)
