@@ -31,6 +31,8 @@ def feedback_encoders(feedback: str) -> tuple[str, str]:
 
 
 STILL_FACTOR = 5
+# Corrections end when the load error exceeds this many times the first one (a runaway).
+DIVERGED = 4
 
 
 class SampledCorrection:
@@ -42,6 +44,10 @@ class SampledCorrection:
         self.phase = self.IDLE
         self.moves = 0
         self.exhausted = False        # ended by correction_max_moves, not by the tolerance
+        # Ended because the load error grew to more than DIVERGED times the one the first
+        # correction was for (counts then, now), not by the tolerance.
+        self.diverged: tuple[int, int] | None = None
+        self._first_error: int | None = None
         self._still_ref = None
         self._still_time = 0.0
         self._load_ref = None
@@ -60,12 +66,12 @@ class SampledCorrection:
     def start(self) -> None:
         """A new move began: its end will be followed by corrections."""
         self.phase, self.moves, self.exhausted = self.MOVING, 0, False
-        self._still_ref = self._load_ref = None
+        self._still_ref = self._load_ref = self._first_error = self.diverged = None
 
     def start_now(self) -> None:
         """`<axis>/correct`: run the correction loop from where the axis is."""
         self.phase, self.moves, self.exhausted = self.CORRECTING, 0, False
-        self._still_ref = self._load_ref = None
+        self._still_ref = self._load_ref = self._first_error = self.diverged = None
 
     def cancel(self) -> None:
         self.phase = self.IDLE
@@ -106,6 +112,15 @@ class SampledCorrection:
         if self.moves >= self.max_moves:
             self.phase, self.exhausted = self.DONE, True
             return None
+        first = self._first_error
+        if first is not None and abs(load_error_counts) > DIVERGED * abs(first):
+            # Galil's loop would go on. Corrections may overshoot on their way in (through the
+            # backlash), but an error several times the first one means they drive the slide
+            # away (stale or wrong readings, a slipping or blocked slide): stop.
+            self.phase, self.diverged = self.DONE, (first, load_error_counts)
+            return None
+        if first is None:
+            self._first_error = load_error_counts
         self.moves += 1
         self.phase = self.CORRECTING
         self._still_ref = self._load_ref = None

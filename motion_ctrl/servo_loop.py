@@ -79,6 +79,7 @@ class ServoLoop:
         self.scheduled_paths: list[tuple[float, Prepared, dict[str, int]]] = []
         self.running_paths: list[dict] = []
         self._faults = {a: 0 for a in axes}
+        self._diverged: dict[str, tuple | None] = {}      # the last logged, per axis
 
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
@@ -276,6 +277,11 @@ class ServoLoop:
                 out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call '
                                          f'{a}/reset'))
             self._faults[a] = faults
+            diverged = axis.sampled.diverged
+            if diverged is not None and self._diverged.get(a) is not diverged:
+                out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
+                                           f'from {diverged[0]} to {diverged[1]} counts'))
+            self._diverged[a] = diverged
             out.names.append(a)
             out.outputs.append(volts)
         return out

@@ -98,3 +98,43 @@ def test_register_sets_apply_together_at_the_next_tick_or_before_a_move():
     loop.stage('x', {'feedback': 'motor'})
     assert loop.move({'x': 0.01}) == []                       # the set first, then the move
     assert loop.axes['x'].r['feedback'] == 'motor' and loop.axes['x'].target == 0.01
+
+
+def test_correction_moves_that_make_the_error_grow_are_not_repeated():
+    """Galil's #CORRECT repeats V2 = V1 − TE until the load error is within tolerance. A
+    correction may overshoot on its way in, but once the load error is more than four times the
+    one the first correction was for (stale or wrong readings, a blocked slide), the
+    corrections end instead of driving the slide away (correction_max_moves is 200), and the
+    loop says so once."""
+    from motion_ctrl.dual_loop import SampledCorrection
+    c = SampledCorrection()
+    c.configure(2 * 2.54e-6, 200, 1 / 2.54e-6, 0.02)
+    c.start_now()
+
+    def settled(error_counts):
+        """Ticks at rest with this load error until a correction is due (or none is)."""
+        for _ in range(200):
+            v2 = c.update(1e-3, profile_done=True, motor_settled=True, motor_counts=0,
+                          load_counts=0, load_error_counts=error_counts, motor_error=0.0,
+                          load_error=error_counts * 2.54e-6)
+            if v2 is not None or c.phase == c.DONE:
+                return v2
+        return None
+    assert settled(20) == pytest.approx(20 * 2.54e-6)          # first correction: V2 = V1
+    assert settled(-30) == pytest.approx(-30 * 2.54e-6)        # overshot: still corrected
+    assert settled(81) is None and c.phase == c.DONE            # > 4 × the first: no more
+    assert c.diverged == (20, 81) and c.moves == 2
+
+    loop = _loop(sim_time=True, feedback='motor')
+    axis = loop.axes['x']
+    loop.feedback('x', 0, 0, 0.0)
+    loop.tick(0.0)
+    axis.sampled.diverged = (20, 81)
+    lines = [line for k in range(1, 4) for line in (_tick_log(loop, k * T))]
+    assert lines == [('warning', 'x: correction moves stopped: the load error grew from 20 to '
+                                 '81 counts')]
+
+
+def _tick_log(loop, now):
+    loop.feedback('x', 0, 0, now)
+    return loop.tick(now).log
