@@ -75,6 +75,37 @@ def bench_core(n: int = 20000) -> list[tuple[str, float]]:
         pos = b.profile.position
         b.update(1e-3, int(pos * r['motor_counts_per_m']), int(pos * r['load_counts_per_m']))
     rows.append(('Axis.update moving (servo law, profile, settling, status)', per_tick(moving)))
+
+    # Two axes following a two-axis trajectory (PVT, quintic): the circle of the draw example;
+    # the polynomials are evaluated once per tick for both (Trajectory.paths).
+    from motion_ctrl import trajectory as tj
+    limits = {n: tj.AxisLimits.from_registers(r) for n in 'xy'}
+    circle = tj.circle((-0.01, 0.0), 0.01, 0.02)
+    traj = tj.Trajectory.from_points(['x', 'y'], circle, start={'x': (0.0, 0.0, 0.0),
+                                                                 'y': (0.0, 0.0, 0.0)},
+                                     limits=limits)
+    axes = {n: Axis(n, r) for n in 'xy'}
+    for ax in axes.values():
+        ax.home(0, 0)
+
+    def following(i):
+        if i % 3000 == 0:                    # the circle lasts 3.64 s: start it again
+            paths = traj.paths()
+            for n, ax in axes.items():
+                ax.profile.hold(0.0)
+                assert ax.follow(paths[n])[0]
+        for ax in axes.values():
+            pos = ax.profile.position
+            ax.update(1e-3, int(pos * r['motor_counts_per_m']),
+                      int(pos * r['load_counts_per_m']))
+    rows.append(('2 axes following a 2-axis trajectory (PVT, quintic): both Axis.update',
+                 per_tick(following)))
+    # What Trajectory.paths saves: the same state from scipy's BPoly calls (p, v, a).
+    shared = traj.paths()['x']
+    rows.append(('  of which the trajectory state for both axes (Trajectory.paths)',
+                 per_tick(lambda i: shared.at((i % 3000 + 0.5) * 1e-3))))
+    rows.append(('  the same from scipy (Trajectory.sample: BPoly p, v, a)',
+                 per_tick(lambda i: traj.sample((i % 3000 + 0.5) * 1e-3), n // 4)))
     return rows
 
 

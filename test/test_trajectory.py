@@ -353,3 +353,29 @@ def test_contour_error_is_the_distance_to_the_polyline():
     # a path folding back on itself: the nearer of the two passes counts
     hairpin = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1 * MM], [0.0, 1 * MM]])
     assert contour_error(hairpin, [[0.5, 0.4 * MM]]) == pytest.approx([0.4 * MM], abs=1e-15)
+
+
+def test_paths_follow_the_trajectory_exactly():
+    """What the servo loop samples per tick (Trajectory.paths, evaluated from the polynomial
+    coefficients) is the trajectory itself, in every segment kind, and holds at the end."""
+    lim = {a: AxisLimits(-1.0, 1.0, 1.0, 10.0) for a in 'xy'}
+    start = {'x': (0.0, 0.0, 0.0), 'y': (0.0, 0.0, 0.0)}
+    ring = circle((-0.01, 0.0), 0.01, 0.02)
+    kinds = [Trajectory.from_points(['x', 'y'], ring, start={'x': (0.0, 0.0, 0.0),
+                                                                   'y': (0.0, 0.0, 0.0)},
+                                       limits=lim),
+             Trajectory.build(['x', 'y'], [0.5, 1.0], [[0.01, 0.0], [0.02, 0.01]],
+                                 [[0.02, 0.0], [0.0, 0.0]], start=start, limits=lim),
+             Trajectory.build(['x', 'y'], [0.5, 1.0, 1.5], [[0.01, 0.0], [0.02, 0.01],
+                                                               [0.0, 0.0]],
+                                 start=start, limits=lim)]
+    assert [t.kind for t in kinds] == ['quintic', 'cubic', 'spline']
+    for traj in kinds:
+        paths = traj.paths()
+        for t in np.linspace(0.0, traj.duration + 0.1, 997):
+            p, v, a = traj.sample(t)
+            for j, name in enumerate(['x', 'y']):
+                got = paths[name].at(float(t))
+                # (the power basis rounds differently: a few 1e-12 m/s² here and there)
+                assert got == pytest.approx((p[j], v[j], a[j]), rel=1e-9, abs=1e-10), \
+                    (traj.kind, t)
