@@ -66,6 +66,7 @@ import numbers
 from msg_defs.status import Status
 from motion_ctrl.backlash import BacklashCompensation
 from motion_ctrl.dual_loop import SampledCorrection, feedback_encoders
+from motion_ctrl.gather import Gather
 from motion_ctrl.profile import Profile
 from motion_ctrl.registers import AXIS_REGISTERS, CONTROLLER_AXIS, axis_defaults, consistency
 from motion_ctrl.servo_law import ServoLaw
@@ -136,6 +137,7 @@ class Axis:
         self.settling = Settling()
         self.backlash = BacklashCompensation()
         self.sampled = SampledCorrection()
+        self.gather: Gather | None = None       # a test signal running (Axis.excite)
         self.r: dict = {}            # the registers applied (set by configure below)
         self.enabled = False
         self.homed = False           # first feedback seen
@@ -283,9 +285,30 @@ class Axis:
         return self._refuse_unless_ready() or self._refuse_below_stop(what)
 
     def _cancel(self, why: str) -> None:
-        """What was scheduled for later is void (see the module docstring)."""
+        """What was scheduled for later is void (see the module docstring); a test signal
+        running ends."""
         self.command_epoch += 1
         self.cancelled_by = why
+        if self.gather is not None:
+            self.gather.end(why)
+
+    def excite(self, excitation, budget: float):
+        """Add `excitation` (motion_ctrl.excitation, one value per servo tick) to the servo
+        output from the next tick on, recording every tick (motion_ctrl.gather, PMAC's gather).
+        Only enabled and at rest; `budget` [m] of slide travel around here ends it early."""
+        reason = self.start_refusal('excitation')
+        if reason:
+            return False, reason
+        if self.profile.moving or not self.status & _DONE:
+            return False, f'{self.name}: excitation refused: the axis moves (wait for MOTION_DONE)'
+        if not (_number(budget) and math.isfinite(budget) and budget > 0.0):
+            return False, f'{self.name}: excitation travel budget {budget!r} m must be > 0'
+        rate = 1.0 / self.servo_period
+        if abs(excitation.sample_rate - rate) > 1e-9 * rate:
+            return False, (f'{self.name}: excitation at {excitation.sample_rate:g} Hz, the servo '
+                           f'loop runs at {rate:g} Hz')
+        self.gather = Gather(excitation, budget, self.load_pos, self.r['output_limit'])
+        return True, ''
 
     def live_change_refusal(self, changes: dict):
         """Why register `changes` cannot apply to the move in progress, or None: a feedback
@@ -335,6 +358,8 @@ class Axis:
         corrections); raises ValueError, changing nothing, if the profile refuses."""
         loop_target = target + self.sampled_offset
         self.profile.move_to(loop_target, max_velocity, max_acceleration)
+        if self.gather is not None:
+            self.gather.end('a new move')
         self.target = target
         self._guard = 0
         self.settling.start_position_move(loop_target)
@@ -366,6 +391,8 @@ class Axis:
             return False, f'{self.name}: {e}'
         self.target = float(path.end)
         self._guard = 0
+        if self.gather is not None:
+            self.gather.end('a trajectory')
         self.settling.start_position_move(self.target + off)
         self._start_corrections()
         self._sticky &= ~_LIMIT
@@ -399,6 +426,8 @@ class Axis:
         # Settle against the velocity the profile runs.
         self.settling.start_velocity_move(p.target_velocity)
         self._sticky &= ~_LIMIT
+        if self.gather is not None:
+            self.gather.end('a jog')
         self._guard = (velocity > 0.0) - (velocity < 0.0)
         if not self._brake_within_limits(self._max_acc, stop_kind=None) and self._guard:
             self._guard_tick(self.servo_period)
@@ -720,6 +749,8 @@ class Axis:
         if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
+        if self.gather is not None and self.gather.running:
+            return self.gather.inject(out, self)     # (self.output stays the servo law's)
         return out
 
     def _update_open(self) -> float:

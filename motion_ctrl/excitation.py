@@ -21,8 +21,8 @@ a servo tick reads `excitation.at(tick)` and two runs inject exactly the same vo
   part (faded in, then discarded by the analysis) and a measured window holding a whole number
   of cycles (the frequency is moved to that bin).
 
-Library functions, no rclpy: the ROS shell that injects them in the servo tick is not written
-yet (README, "Tuning an axis").
+Library functions, no rclpy: an axis injects them in its servo tick (`Axis.excite`,
+motion_ctrl.gather); the ROS outside is not written yet (README, "Tuning an axis").
 """
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ from conftest import REPO_ROOT
 # tick, the plant physics, and what is built on them in process (harness, tuning, scenarios,
 # identification).
 CORE = ['axis', 'backlash', 'deadband', 'diagnostics', 'dual_loop', 'excitation',
-        'feedback_sync', 'harness', 'identify', 'iso230', 'notch', 'plant', 'profile',
+        'feedback_sync', 'gather', 'harness', 'identify', 'iso230', 'notch', 'plant', 'profile',
         'registers', 'scenarios', 'servo_law', 'servo_loop', 'settling', 'trajectory', 'tuning']
 # The ROS shell and the tools around it: nodes, parameters, clients, processes, recording.
 # These may import ROS (some do only inside functions).
