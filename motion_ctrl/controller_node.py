@@ -183,16 +183,16 @@ class ControllerNode(ros_params.RegisterNode):
         entry[0], entry[1] = now, 0
         self.get_logger().warning(text + more)
 
-    def _raw_target(self, callback, what: str, kind=JointState, max_bytes=MAX_TARGET_BYTES):
+    def _raw_target(self, callback, what: str):
         def on_raw(data: bytes) -> None:
-            if len(data) > max_bytes:
+            if len(data) > MAX_TARGET_BYTES:
                 self._refused(what + ':size', f'{what} refused: a {len(data)}-byte message '
-                              f'(at most {max_bytes})')
+                              f'(at most {MAX_TARGET_BYTES})')
                 return
             try:
-                msg = deserialize_message(data, kind)
+                msg = deserialize_message(data, JointState)
             except Exception as e:           # (rclpy raises its own types for a bad CDR)
-                self._refused(what, f'{what} refused: not a {kind.__name__} ({e})')
+                self._refused(what, f'{what} refused: not a JointState ({e})')
                 return
             callback(msg)
         return on_raw

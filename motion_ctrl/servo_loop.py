@@ -41,10 +41,13 @@ def _ns(seconds: float) -> float:
 
 @dataclass(frozen=True)
 class Prepared:
-    """A trajectory checked and built from the axes' state `start` ({axis: (p, v, a)})."""
+    """A trajectory checked and built from the axes' state `start` ({axis: (p, v, a)}), and
+    each axis's share of it (`paths`, Trajectory.paths: a few ms for a few hundred points, so
+    made here, off the servo thread where the node can)."""
     spec: dict
     trajectory: Trajectory
     start: dict
+    paths: dict
 
 
 @dataclass
@@ -120,22 +123,18 @@ class ServoLoop:
         """Start moves now, after any register set accepted before them (commands take effect in
         the order they came: a feedback change applied at the next tick would re-home the
         command and drop a move started meanwhile). Returns (axis, refusal) of those refused."""
-        if self.staged:
-            self.apply_staged()
-        refused = []
-        for a, target in targets.items():
-            ok, reason = self.axes[a].move_to(target)
-            if not ok:
-                refused.append((a, reason))
-        return refused
+        return self._start(Axis.move_to, targets)
 
     def jog(self, velocities: dict) -> list[tuple[str, str]]:
         """Start jogs now, after any register set accepted before them (as `move`)."""
+        return self._start(Axis.jog, velocities)
+
+    def _start(self, command, values: dict) -> list[tuple[str, str]]:
         if self.staged:
             self.apply_staged()
         refused = []
-        for a, v in velocities.items():
-            ok, reason = self.axes[a].jog(v)
+        for a, value in values.items():
+            ok, reason = command(self.axes[a], value)
             if not ok:
                 refused.append((a, reason))
         return refused
@@ -154,7 +153,7 @@ class ServoLoop:
                                      start=start, limits=limits)
         except ValueError as e:
             return str(e)
-        return Prepared(spec, built, start)
+        return Prepared(spec, built, start, built.paths())
 
     def trajectory(self, job, stamp: float | None = None, now: float | None = None):
         """Start (or, with a `stamp` after `now`, schedule) a multi-axis trajectory: `job` a
@@ -177,7 +176,7 @@ class ServoLoop:
             self.scheduled_paths.append(
                 (stamp, job, {a: self.axes[a].command_epoch for a in names}))
             return None
-        paths = job.trajectory.paths()
+        paths = job.paths
         for a in names:
             ok, reason = self.axes[a].follow(paths[a])
             if not ok:                       # (checked above; a refusal here still counts)

@@ -74,7 +74,6 @@ REST_TOLERANCE = 1e-9
 # a trajectory planned exactly at a limit is not refused for the rounding of its polynomials.
 LIMIT_TOLERANCE = 1e-9
 
-KINDS = ('quintic', 'cubic', 'spline')
 
 
 class AxisState(NamedTuple):
@@ -290,8 +289,9 @@ def _between(seg: int, x, offset: int) -> str:
     return f'between {begin} and point {end} (t={x[seg + 1]:g} s)'
 
 
-def _motion_reason(names, x, ppolys, offset, limits) -> str | None:
-    """Interpolated |velocity|, |acceleration| and position against each axis's limits."""
+def _motion_reason(names, x, ppolys, positions, offset, limits) -> str | None:
+    """Interpolated |velocity|, |acceleration| and position (`positions`: each axis's
+    _candidates of order 0) against each axis's limits."""
     for order, (what, unit), register in ((1, _UNITS[1], 'max_velocity'),
                                           (2, _UNITS[2], 'max_acceleration')):
         for name, pp in zip(names, ppolys):
@@ -301,9 +301,8 @@ def _motion_reason(names, x, ppolys, offset, limits) -> str | None:
             if abs(values[k]) > limit * (1 + LIMIT_TOLERANCE):
                 return (f'{name}: {what} {values[k]:.6g} {unit} at t={times[k]:.6g} s, '
                         f'{_between(seg[k], x, offset)}, exceeds {register} {limit:g} {unit}')
-    for name, pp in zip(names, ppolys):
+    for name, (times, values, seg) in zip(names, positions):
         lo, hi = limits[name].soft_limit_min, limits[name].soft_limit_max
-        times, values, seg = _candidates(pp, 0)
         hit = None
         k = int(np.argmax(values))
         if values[k] > hi + LIMIT_TOLERANCE:
@@ -343,10 +342,12 @@ def _plan(names, times, positions, velocities, accelerations, start, limits):
     kind, x, poly, offset = _interpolant(t, P, V, A, own)
     pp = poly if isinstance(poly, PPoly) else PPoly.from_bernstein_basis(poly)
     ppolys = [PPoly(pp.c[..., j], pp.x) for j in range(len(names))]
-    reason = _motion_reason(names, x, ppolys, offset, limits)
+    positions = [_candidates(q, 0) for q in ppolys]
+    reason = _motion_reason(names, x, ppolys, positions, offset, limits)
     if reason:
         return reason
-    return Trajectory(tuple(names), kind, x, poly, ppolys)
+    extrema = {n: (float(v.min()), float(v.max())) for n, (_, v, _) in zip(names, positions)}
+    return Trajectory(tuple(names), kind, x, poly, ppolys, extrema)
 
 
 def check(names: Sequence[str], times, positions, velocities=None, accelerations=None, *,
@@ -367,7 +368,8 @@ class Trajectory:
     knots      times of the polynomial's knots, s: 0 (the axis's state) and the points' times
     duration   the last point's time, s
     """
-    __slots__ = ('names', 'kind', 'knots', 'duration', '_p', '_v', '_a', '_end', '_ppolys')
+    __slots__ = ('names', 'kind', 'knots', 'duration', '_p', '_v', '_a', '_end', '_ppolys',
+                 '_extrema')
 
     names: tuple[str, ...]
     kind: str
@@ -378,8 +380,9 @@ class Trajectory:
     _a: PPoly | BPoly
     _end: np.ndarray
     _ppolys: tuple[PPoly, ...]
+    _extrema: dict[str, tuple[float, float]]
 
-    def __init__(self, names, kind, knots, poly, ppolys):
+    def __init__(self, names, kind, knots, poly, ppolys, extrema):
         """Internal: use Trajectory.build, which checks the points."""
         knots = np.array(knots, dtype=float)
         knots.flags.writeable = False
@@ -387,7 +390,7 @@ class Trajectory:
                             ('duration', float(knots[-1])), ('_p', poly),
                             ('_v', poly.derivative(1)), ('_a', poly.derivative(2)),
                             ('_end', np.array(poly(knots[-1]), dtype=float)),
-                            ('_ppolys', tuple(ppolys))):
+                            ('_ppolys', tuple(ppolys)), ('_extrema', dict(extrema))):
             object.__setattr__(self, attr, value)
         self._end.flags.writeable = False
 
@@ -450,12 +453,9 @@ class Trajectory:
                 for j, n in enumerate(self.names)}
 
     def position_extrema(self) -> dict[str, tuple[float, float]]:
-        """Per axis, (min, max) of the commanded position over the whole trajectory (exact)."""
-        out = {}
-        for name, pp in zip(self.names, self._ppolys):
-            values = _candidates(pp, 0)[1]
-            out[name] = (float(values.min()), float(values.max()))
-        return out
+        """Per axis, (min, max) of the commanded position over the whole trajectory (exact:
+        found by the soft-limit check when it was built)."""
+        return dict(self._extrema)
 
 
 class _LastSample:
@@ -467,12 +467,12 @@ class _LastSample:
     __slots__ = ('t', 'values', '_x', '_coef', '_end', '_duration')
 
     def __init__(self, trajectory: Trajectory):
-        poly = trajectory._p
-        pp = PPoly.from_bernstein_basis(poly) if isinstance(poly, BPoly) else poly
-        self._x = pp.x.tolist()
+        ppolys = trajectory._ppolys               # per axis, the power basis
+        self._x = ppolys[0].x.tolist()
         # per interval: for p, v, a: per axis, the coefficients, highest power first
-        polys = (pp, pp.derivative(1), pp.derivative(2))
-        self._coef = [[q.c[:, i, :].T.tolist() for q in polys] for i in range(pp.c.shape[1])]
+        p, v, a = (np.stack([(pp.derivative(k) if k else pp).c for pp in ppolys])
+                   .transpose(2, 0, 1).tolist() for k in range(3))       # [interval][axis][c]
+        self._coef = list(zip(p, v, a))
         self._end = trajectory._end.tolist()
         self._duration = trajectory.duration
         self.t: float | None = None
