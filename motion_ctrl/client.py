@@ -11,6 +11,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
 from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
 
 import msg_defs as md
 from motion_ctrl import ros_env
@@ -31,7 +32,7 @@ class SlideClient(Node):
         self.axes = list(axes)
         self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
         self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
-        self.pub_trajectory = None       # made by the first follow()
+        self.pub_trajectory = self.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
         self.truth = None          # latest plant_states {joint: position}
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
@@ -136,14 +137,13 @@ class SlideClient(Node):
                              list(targets.values()))
         return self._send_and_wait(self.pub_target, msg, list(targets), timeout)
 
-    def follow(self, names, times, positions, velocities=None, timeout: float = 5.0):
-        """Send a joint_trajectory (starting now) and wait as `move` does; returns as `move`."""
-        if self.pub_trajectory is None:
-            from trajectory_msgs.msg import JointTrajectory
-            self.pub_trajectory = self.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
-            self.spin_until(lambda: self.pub_trajectory.get_subscription_count() > 0, 5.0)
+    def follow(self, names, times, positions, velocities=None, accelerations=None,
+               timeout: float = 5.0):
+        """Send a joint_trajectory (starting now) and wait as `move` does, `timeout` after its
+        last point; returns as `move`."""
+        self.spin_until(lambda: self.pub_trajectory.get_subscription_count() > 0, 5.0)
         from builtin_interfaces.msg import Time
-        msg = md.joint_trajectory(Time(), names, times, positions, velocities)
+        msg = md.joint_trajectory(Time(), names, times, positions, velocities, accelerations)
         return self._send_and_wait(self.pub_trajectory, msg, list(names),
                                    max(times) + timeout)
 

@@ -120,9 +120,7 @@ def main(argv=None) -> int:
         ap.error(f'--shapes: circle and/or square, got {args.shapes!r}')
     domain = ros_env.private_domain()
     import rclpy
-    from builtin_interfaces.msg import Time
     from sensor_msgs.msg import JointState
-    from trajectory_msgs.msg import JointTrajectory
 
     import msg_defs as md
     from motion_ctrl.client import SlideClient
@@ -140,7 +138,6 @@ def main(argv=None) -> int:
     nodes = start_slide(ctrl, {'axes': axes} | rt, log_dir=out)
     rclpy.init()
     client = SlideClient(axes=AXES)
-    pub = client.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
     command: dict = {}
     truth: list = []
 
@@ -161,20 +158,16 @@ def main(argv=None) -> int:
             print(f'draw: the nodes did not come up ({client.not_ready()}); see the logs',
                   file=sys.stderr)
             return 1
-        client.spin_until(lambda: pub.get_subscription_count() > 0, 5.0)
+        client.spin_until(lambda: client.pub_trajectory.get_subscription_count() > 0, 5.0)
         print(f'{"shape":<8}{"points":>7}{"time [s]":>9}{"contour RMS":>13}{"peak":>8}'
               f'{"x error":>9}{"y error":>9}{"MOTION_DONE":>13}   (counts; after 1st quarter)')
         for shape in shapes:
             start = dict(command)
             points, _ = shape_points(shape, start, args.radius, args.speed)
-            marks = {a: len(client.status_log[a]) for a in AXES}
             truth.clear()
-            msg = md.joint_trajectory(Time(), list(AXES), points.times, points.positions,
-                                      points.velocities, points.accelerations)
             t0 = time.time()
-            pub.publish(msg)
-            done = client.spin_until(lambda: all(client.move_done(a, marks[a]) for a in AXES),
-                                     points.times[-1] + 5.0)
+            done = client.follow(list(AXES), points.times, points.positions, points.velocities,
+                                 points.accelerations) is not None
             client.spin_until(lambda: False, 0.1)
             samples = np.array(truth).reshape(-1, 3)
             if not done or len(samples) == 0:
