@@ -24,18 +24,18 @@ VERSION = '0.1.0'
 # The one list of executables: `ros2 run motion_ctrl NAME` -> module:function.
 # console_scripts and the pip-path shims are both derived from it.
 EXECUTABLES = {
-    'controller': 'motion_ctrl.controller_node:main',
-    'plant': 'motion_ctrl.plant_node:main',
-    'notch': 'motion_ctrl.notch:main',
-    'demo': 'motion_ctrl.demo:main',
-    'scenarios': 'motion_ctrl.scenarios:main',
-    'tune': 'motion_ctrl.tuning:main',
-    'benchmark': 'motion_ctrl.benchmark:main',
-    'record': 'motion_ctrl.record:main',
-    'report': 'motion_ctrl.report:main',
-    'soak': 'motion_ctrl.soak:main',
-    'draw': 'motion_ctrl.draw:main',
-    'calibrate': 'motion_ctrl.calibrate:main',
+    'controller': 'motion_ctrl.ros.controller_node:main',
+    'plant': 'motion_ctrl.ros.plant_node:main',
+    'notch': 'motion_ctrl.tools.notch:main',
+    'demo': 'motion_ctrl.tools.demo:main',
+    'scenarios': 'motion_ctrl.tools.scenarios:main',
+    'tune': 'motion_ctrl.tools.tuning:main',
+    'benchmark': 'motion_ctrl.tools.benchmark:main',
+    'record': 'motion_ctrl.tools.record:main',
+    'report': 'motion_ctrl.tools.report:main',
+    'soak': 'motion_ctrl.tools.soak:main',
+    'draw': 'motion_ctrl.tools.draw:main',
+    'calibrate': 'motion_ctrl.tools.calibrate:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

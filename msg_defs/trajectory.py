@@ -1,7 +1,7 @@
 """Build and read trajectory_msgs/JointTrajectory, the carrier of timed multi-axis paths.
 
 Reading only converts the message into plain lists; the whole trajectory is checked by the core
-(motion_ctrl.trajectory), which says which axis, point and limit a refusal is about.
+(motion_ctrl.core.trajectory), which says which axis, point and limit a refusal is about.
 """
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 

@@ -30,7 +30,7 @@ def no_zombie_shm():
     tests kill nodes on purpose) go, so their locked port mutexes cannot stall later nodes.
     Not between tests: the check takes each lock file's flock for a moment, and a participant
     starting meanwhile finds its lock taken (its shared-memory port then fails)."""
-    from motion_ctrl import ros_env
+    from motion_ctrl.ros import ros_env
     ros_env.clean_zombie_shm()
     yield
     ros_env.clean_zombie_shm()
@@ -42,7 +42,7 @@ def module_domain():
     environment its node processes inherit: what one module's processes leave in shared memory
     (a killed or crashed participant's port, whose dead listener a later participant with the
     same port number inherits) cannot reach the next module's nodes. Yields the domain."""
-    from motion_ctrl import ros_env
+    from motion_ctrl.ros import ros_env
     saved = os.environ['ROS_DOMAIN_ID']
     domain = ros_env.spare_domain()
     os.environ['ROS_DOMAIN_ID'] = str(domain)
@@ -70,7 +70,7 @@ def own_domain(rclpy_session, monkeypatch):
     the environment the test's node processes inherit, and an rclpy context on it for the
     test's own clients (not the session's participant, which would keep the dead ports open).
     Yields the context."""
-    from motion_ctrl import ros_env
+    from motion_ctrl.ros import ros_env
     domain = ros_env.spare_domain()
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     context = rclpy_session.Context()

@@ -25,9 +25,9 @@ from std_msgs.msg import Bool  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
-from motion_ctrl.client import FAULTS, SlideClient  # noqa: E402
-from motion_ctrl.processes import NodeProcess, params_dir, start_slide  # noqa: E402
-from motion_ctrl.registers import INCH, PLANT_AXIS  # noqa: E402
+from motion_ctrl.ros.client import FAULTS, SlideClient  # noqa: E402
+from motion_ctrl.ros.processes import NodeProcess, params_dir, start_slide  # noqa: E402
+from motion_ctrl.core.registers import INCH, PLANT_AXIS  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401

@@ -6,9 +6,9 @@ import tracemalloc
 
 import pytest
 
-from motion_ctrl.axis import Axis
-from motion_ctrl.harness import Harness
-from motion_ctrl.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from msg_defs.status import Status as S
 
 DEFAULTS = axis_defaults(AXIS_REGISTERS)

@@ -1,4 +1,4 @@
-"""Tests for motion_ctrl.backlash (PMAC Ixx85/86/87, DEFINE BLCOMP, DEFINE COMP).
+"""Tests for motion_ctrl.core.backlash (PMAC Ixx85/86/87, DEFINE BLCOMP, DEFINE COMP).
 
 All numbers worked by hand; SI units (m, m/s, s).
 """
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from motion_ctrl.backlash import BacklashCompensation, apply_correction, interpolate_table
+from motion_ctrl.core.backlash import BacklashCompensation, apply_correction, interpolate_table
 
 UM = 1e-6
 MM = 1e-3

@@ -16,7 +16,7 @@ import sys
 import numpy as np
 import pytest
 
-from motion_ctrl import bag_repair, report
+from motion_ctrl.tools import bag_repair, report
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 JS = 'sensor_msgs/msg/JointState'
@@ -34,7 +34,7 @@ def write_bag(path, n=1200, flush_every=100, close=False):
     recorder's FLUSH_PERIOD). Returns ([(topic, log_time, raw)], writer or None)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     import msg_defs as md
-    from motion_ctrl.record import _rosbags_qos
+    from motion_ctrl.tools.record import _rosbags_qos
     ts = _typestore()
     JointState, Header, Time = (ts.types[t] for t in (
         JS, 'std_msgs/msg/Header', 'builtin_interfaces/msg/Time'))
@@ -205,7 +205,7 @@ def test_repair_edge_cases(killed, tmp_path, capsys):
     for name, path in cases.items():
         with pytest.raises(bag_repair.RepairError):
             bag_repair.repair(path)
-        from motion_ctrl import record
+        from motion_ctrl.tools import record
         assert record.main(['--repair', str(path)]) == 2, name
         err = capsys.readouterr().err
         assert err.startswith('record: error:') and err.count('\n') == 1, (name, err)
@@ -231,7 +231,7 @@ def test_repair_edge_cases(killed, tmp_path, capsys):
 def test_record_repair_cli(killed, tmp_path):
     """The user's one command after a crash, then `report` reads the bag."""
     bag = _cut(killed, len(killed['data']) - 700, tmp_path)
-    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.record', '--repair', str(bag)],
+    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.record', '--repair', str(bag)],
                        cwd=str(REPO_ROOT), capture_output=True, text=True, timeout=60,
                        env={**__import__('os').environ, 'PYTHONPATH': str(REPO_ROOT)})
     assert p.returncode == 0, p.stderr

@@ -26,7 +26,8 @@ def test_benchmark_prints_core_and_dds_rows(node_env):
     env = dict(node_env)
     # A domain of its own: no node of another test may answer it.
     env['ROS_DOMAIN_ID'] = str((int(env['ROS_DOMAIN_ID']) + 20) % 101 + 1)
-    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.benchmark', '--sections', 'core,dds',
+    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.benchmark',
+                        '--sections', 'core,dds',
                         '--rates', '1000', '--axes', '1,3', '--seconds', '1'],
                        env=env, capture_output=True, text=True, timeout=110)
     assert r.returncode == 0, r.stderr

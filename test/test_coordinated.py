@@ -7,12 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from motion_ctrl import draw, trajectory as tj
-from motion_ctrl.harness import Harness
-from motion_ctrl.registers import LOAD_COUNTS_PER_M, axis_defaults
+from motion_ctrl.core import trajectory as tj
+
+from motion_ctrl.tools import draw
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, axis_defaults
 from msg_defs.status import Status as S
 
-# The example's registers (motion_ctrl.draw): friction feedforward = the slide's friction.
+# The example's registers (motion_ctrl.tools.draw): friction feedforward = the slide's friction.
 REGISTERS = axis_defaults() | {'feedback': 'dual', 'friction_ff': 0.24}
 R, V = 0.010, 0.020
 

@@ -1,4 +1,4 @@
-"""Tests for motion_ctrl.deadband (Delta RMC Output Deadband + Deadband Tolerance, seed 000).
+"""Tests for motion_ctrl.core.deadband (Delta RMC Output Deadband + Deadband Tolerance, seed 000).
 
 Numbers: a 0.4 V deadband, a 1 mm tolerance, and the default slide's linear encoder
 (2.54 um per count, so half a raw count = 1.27 um).
@@ -6,7 +6,7 @@ Numbers: a 0.4 V deadband, a 1 mm tolerance, and the default slide's linear enco
 
 import pytest
 
-from motion_ctrl.deadband import anti_hunting, limit_integral_to_wind_down, output_deadband
+from motion_ctrl.core.deadband import anti_hunting, limit_integral_to_wind_down, output_deadband
 
 DB = 0.4          # V
 TOL = 1e-3        # m

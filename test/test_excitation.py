@@ -1,11 +1,11 @@
-"""motion_ctrl.excitation: test signals, tick-exact, with their band and validation."""
+"""motion_ctrl.core.excitation: test signals, tick-exact, with their band and validation."""
 import math
 
 import numpy as np
 import pytest
 from scipy import signal as sps
 
-from motion_ctrl import excitation as ex
+from motion_ctrl.core import excitation as ex
 
 FS = 1000.0
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from motion_ctrl.feedback_sync import FeedbackSync
+from motion_ctrl.core.feedback_sync import FeedbackSync
 
 T = 1e-3
 

@@ -4,9 +4,11 @@ the slide in closed loop (excitation as the instrument)."""
 import numpy as np
 import pytest
 
-from motion_ctrl import excitation as ex, identify as idf
-from motion_ctrl.harness import Harness
-from motion_ctrl.registers import axis_defaults
+from motion_ctrl.analysis import identify as idf
+
+from motion_ctrl.core import excitation as ex
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.registers import axis_defaults
 
 T = 1e-3
 FS = 1 / T

@@ -1,8 +1,8 @@
-"""motion_ctrl.identify on synthetic records with a known answer.
+"""motion_ctrl.analysis.identify on synthetic records with a known answer.
 
 The plants are simulated independently of the model identify fits: a physical two-mass state
 space (motor mass, screw spring and damper, slide mass, viscous friction on both) discretised
-with scipy.signal.cont2discrete (zero-order hold), and motion_ctrl.plant.SlidePlant itself
+with scipy.signal.cont2discrete (zero-order hold), and motion_ctrl.sim.plant.SlidePlant itself
 (friction and backlash off, read through its quantised encoders).
 """
 import math
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
-from motion_ctrl import excitation as ex
-from motion_ctrl import identify as idf
-from motion_ctrl import notch, registers
-from motion_ctrl.plant import SlidePlant
-from motion_ctrl.servo_law import ServoLaw
+from motion_ctrl.core import excitation as ex
+from motion_ctrl.analysis import identify as idf
+from motion_ctrl.core import notch, registers
+from motion_ctrl.sim.plant import SlidePlant
+from motion_ctrl.core.servo_law import ServoLaw
 
 FS = 1000.0
 T = 1.0 / FS
@@ -359,7 +359,7 @@ def test_pid_open_loop_margin_predicts_where_the_servo_law_goes_unstable():
 
 def test_margins_of_the_shipped_gains_on_the_identified_slide():
     """The registers' default gains (dual loop: kp, ki on the slide, kd on the motor; one tick
-    of latency, as motion_ctrl.tuning assumes) on the two-mass fit of the default slide: the
+    of latency, as motion_ctrl.tools.tuning assumes) on the two-mass fit of the default slide: the
     loop is stable with margins below Kollmorgen's 8 dB / 45° (what tuning reports)."""
     ad, bd, _ = two_mass()
     e = ex.prbs(2.0, (1.0, 500.0), 8.0, FS)

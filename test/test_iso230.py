@@ -1,13 +1,14 @@
-"""ISO 230-2 statistics, test plan, compensation tables and their files (motion_ctrl/iso230.py),
-without ROS: a hand-worked example, the tables checked with the controller's own compensation
-(motion_ctrl/backlash.py), and the whole procedure on the in-process simulated slide."""
+"""ISO 230-2 statistics, test plan, compensation tables and their files
+(motion_ctrl/analysis/iso230.py), without ROS: a hand-worked example, the tables checked with the
+controller's own compensation (motion_ctrl/core/backlash.py), and the whole procedure on the
+in-process simulated slide."""
 import math
 
 import numpy as np
 import pytest
 
-from motion_ctrl import iso230
-from motion_ctrl.backlash import BacklashCompensation, interpolate_table
+from motion_ctrl.analysis import iso230
+from motion_ctrl.core.backlash import BacklashCompensation, interpolate_table
 
 UM = 1e-6
 
@@ -213,7 +214,7 @@ class HarnessAxis:
     MOTION_DONE, readings are the linear encoder's counts at rest."""
 
     def __init__(self, registers, plant=None, latency_ticks=0):
-        from motion_ctrl.harness import Harness
+        from motion_ctrl.sim.harness import Harness
         self.h = Harness(registers, plant, record=False, latency_ticks=latency_ticks)
 
     def move(self, position, timeout):
@@ -238,7 +239,7 @@ class HarnessAxis:
 
 
 def iso_run(tables=None, plant=None, targets=None, latency_ticks=0, approach=(0.0, 0.0)):
-    from motion_ctrl.calibrate import run_test
+    from motion_ctrl.tools.calibrate import run_test
     registers = dict(feedback='motor') | (tables.registers('_') if tables else {})
     registers = {k.removeprefix('_.'): v for k, v in registers.items()}
     return run_test(HarnessAxis(registers, plant, latency_ticks), targets, 5, 0.001, 20, 20,

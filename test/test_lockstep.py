@@ -1,7 +1,7 @@
 """Lockstep simulation over DDS: the same move twice gives identical plant_states (issue 6)."""
 import pytest
 
-from motion_ctrl.lockstep import run_lockstep
+from motion_ctrl.ros.lockstep import run_lockstep
 
 COUNT = 0.0254 / 10000
 START = 20.0           # sim time of the move [s]

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from msg_defs.status import Status
-from motion_ctrl.axis import stopping_distance
-from motion_ctrl.harness import Harness
-from motion_ctrl.profile import Profile
-from motion_ctrl.registers import INCH, axis_defaults
+from motion_ctrl.core.axis import stopping_distance
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.profile import Profile
+from motion_ctrl.core.registers import INCH, axis_defaults
 
 S = Status
 T = 1e-3

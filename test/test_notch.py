@@ -1,4 +1,4 @@
-"""Tests for motion_ctrl.notch (PMAC Ixx36..Ixx39 notch / low-pass).
+"""Tests for motion_ctrl.core.notch (PMAC Ixx36..Ixx39 notch / low-pass).
 
 Every test checks a number a servo engineer would check: coefficients against the manual's
 formula, DC gain, attenuation (computed and measured on a simulated sine), refusals, CLI output.
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from motion_ctrl import notch
-from motion_ctrl.notch import (Biquad, angle_matched_frequency, dc_gain, design, gain_db,
+from motion_ctrl.core import notch
+from motion_ctrl.tools import notch as notch_cli
+from motion_ctrl.core.notch import (Biquad, angle_matched_frequency, dc_gain, design, gain_db,
                                lowpass, prewarp_inputs, response)
 
 
@@ -299,7 +300,7 @@ def test_biquad_reconfigure_keeps_history():
 # CLI
 
 def run_cli(capsys, *args):
-    assert notch.main(list(args)) == 0
+    assert notch_cli.main(list(args)) == 0
     out = capsys.readouterr().out
     return out, yaml.safe_load(out)
 
@@ -351,7 +352,7 @@ def test_cli_lowpass_manual_example(capsys):
 ])
 def test_cli_bad_arguments_exit_2(capsys, args):
     with pytest.raises(SystemExit) as e:
-        notch.main(args)
+        notch_cli.main(args)
     assert e.value.code == 2
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith('notch: error:')]

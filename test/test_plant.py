@@ -3,8 +3,8 @@ import math
 
 import pytest
 
-from motion_ctrl.plant import SlidePlant
-from motion_ctrl.registers import INCH
+from motion_ctrl.sim.plant import SlidePlant
+from motion_ctrl.core.registers import INCH
 
 COUNT = INCH / 10000            # one linear count, 2.54 um
 
@@ -133,7 +133,7 @@ def test_watchdog_stops_a_slide_at_max_velocity_within_5_mm():
     """The default timeout and dynamic brake: a slide moving at the default max_velocity
     (0.1 m/s) when its commands stop travels <= 5 mm more and rests within 0.5 s; with the
     dynamic brake off it coasts against friction alone for ~9 mm."""
-    from motion_ctrl.harness import Harness
+    from motion_ctrl.sim.harness import Harness
 
     def after_loss(**plant):
         h = Harness(plant=plant)

@@ -1,4 +1,4 @@
-"""Tests of the one-axis move generator (motion_ctrl.profile)."""
+"""Tests of the one-axis move generator (motion_ctrl.core.profile)."""
 
 import math
 import os
@@ -8,7 +8,7 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from motion_ctrl.profile import Profile  # noqa: E402
+from motion_ctrl.core.profile import Profile  # noqa: E402
 
 T = 0.001          # 1 kHz servo period
 VMAX = 0.1

@@ -29,9 +29,9 @@ import numpy as np
 import pytest
 
 from msg_defs.status import Status
-from motion_ctrl import report
-from motion_ctrl.harness import Harness
-from motion_ctrl.registers import INCH, LOAD_COUNTS_PER_M
+from motion_ctrl.tools import report
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 SERVO_TOPICS = ['/joint_states', '/reference_states', '/motor_states', '/command', '/encoders',
@@ -52,11 +52,11 @@ def _default_sigint():
 
 
 class RecorderProcess:
-    """`python -m motion_ctrl.record` with its stdout read line by line in a thread."""
+    """`python -m motion_ctrl.tools.record` with its stdout read line by line in a thread."""
 
     def __init__(self, args):
         self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'motion_ctrl.record'] + list(args), cwd=str(REPO_ROOT),
+            [sys.executable, '-m', 'motion_ctrl.tools.record'] + list(args), cwd=str(REPO_ROOT),
             env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             preexec_fn=_default_sigint)
         self.lines = queue.Queue()
@@ -162,7 +162,7 @@ class Checker:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
         from diagnostic_msgs.msg import DiagnosticArray
-        from motion_ctrl import ros_env
+        from motion_ctrl.ros import ros_env
         self.executor = ros_env.executor(context)
         self.node = Node('record_checker', context=context)
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -219,8 +219,8 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
 def _slide(logs, watchdog, context=None):
-    from motion_ctrl.client import SlideClient
-    from motion_ctrl.processes import start_slide
+    from motion_ctrl.ros.client import SlideClient
+    from motion_ctrl.ros.processes import start_slide
     # The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording
     # is under test here, not the feedback watchdog.
     plant, controller = start_slide(watchdog, log_dir=logs)
@@ -413,7 +413,7 @@ def test_sigterm_leaves_a_readable_bag(slide, tmp_path):
 
 def test_recorder_api_in_process(slide, tmp_path):
     """The library API the demo uses: Recorder in the caller's rclpy context."""
-    from motion_ctrl.record import Recorder
+    from motion_ctrl.tools.record import Recorder
     bag = tmp_path / 'api'
     with Recorder(bag) as rec:
         assert rec.wait_ready(10.0)
@@ -498,7 +498,7 @@ def test_sigkill_then_repair_keeps_all_but_the_last_second(own_slide, tmp_path):
     assert median <= 0.75, f'the recording reached the file every {median:.2f} s: {growth}'
 
     # The one command.
-    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.record', '--repair', str(bag)],
+    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.record', '--repair', str(bag)],
                        cwd=str(REPO_ROOT), env=_env(), capture_output=True, text=True,
                        timeout=120)
     assert p.returncode == 0 and p.stdout.startswith('record: repaired'), p.stdout + p.stderr
@@ -719,7 +719,7 @@ def test_report_errors_are_one_line(case, tmp_path, capsys):
 
 
 def test_record_refuses_an_existing_output(tmp_path):
-    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.record', '-o', str(tmp_path)],
+    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.record', '-o', str(tmp_path)],
                        cwd=str(REPO_ROOT), env=_env(), capture_output=True, text=True,
                        timeout=60)
     assert p.returncode == 2
@@ -728,7 +728,7 @@ def test_record_refuses_an_existing_output(tmp_path):
 
 def test_report_cli_error_exit_code(tmp_path):
     """The real entry point: no traceback, exit code 2."""
-    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.report', str(tmp_path / 'nope')],
+    p = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.report', str(tmp_path / 'nope')],
                        cwd=str(REPO_ROOT), env=_env(), capture_output=True, text=True,
                        timeout=60)
     assert p.returncode == 2

@@ -5,7 +5,7 @@ import pathlib
 import pytest
 import yaml
 
-from motion_ctrl import registers as R
+from motion_ctrl.core import registers as R
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
@@ -13,14 +13,14 @@ REPO = pathlib.Path(__file__).resolve().parent.parent
 @pytest.mark.parametrize('path', sorted(R.GENERATED))
 def test_params_files_are_generated_from_the_table(path):
     assert (REPO / path).read_text() == R.GENERATED[path](), \
-        f'{path} is stale: run python -m motion_ctrl.registers --write .'
+        f'{path} is stale: run python -m motion_ctrl.core.registers --write .'
 
 
 def test_readme_tables_are_generated_from_the_table():
     text = (REPO / 'README.md').read_text()
     for key, make in R.README_BLOCKS.items():
         assert R.readme_block(text, key) == make(), \
-            'README register table is stale: run python -m motion_ctrl.registers --write .'
+            'README register table is stale: run python -m motion_ctrl.core.registers --write .'
 
 
 def test_controller_yaml_holds_every_register_in_ros2_param_load_format():

@@ -31,7 +31,7 @@ def figures(report: str) -> dict:
 ])
 def test_calibration_takes_out_the_backlash(node_env, tmp_path, plant, backlash_counts):
     # A process of its own, as a user runs it (it sets its DDS transports for lockstep).
-    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.calibrate', *ARGS, *plant,
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.calibrate', *ARGS, *plant,
                           '-o', str(tmp_path)], env=node_env, capture_output=True, text=True,
                          timeout=230)
     assert run.returncode == 0, f'calibrate failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \

@@ -1,9 +1,9 @@
 """Issue 11: the servo loop keeps running while people use ROS on it.
 
-`python -m motion_ctrl.soak` (what `scripts/soak` runs) as a process of its own: plant and
+`python -m motion_ctrl.tools.soak` (what `scripts/soak` runs) as a process of its own: plant and
 controller with the shipped parameters (feedback_timeout 0.02 s) at real-time priority
 (realtime_priority 30, README Notes), the axis moving 1 inch back and forth, while 50 short-lived
-participants (motion_ctrl.visitor: a node that reads a register, subscribes to joint_states and
+participants (motion_ctrl.ros.visitor: a node that reads a register, subscribes to joint_states and
 x/status for a moment, and exits) join and leave, two at a time, and a recorder starts and
 stops: no FEEDBACK_FAULT, every move within 1 count, the recorder exits cleanly.
 """
@@ -28,7 +28,7 @@ import pytest
 @pytest.mark.timeout(300)
 def test_joining_tools_and_a_recorder_do_not_open_the_loop(tmp_path, node_env):
     run = subprocess.run(
-        [sys.executable, '-m', 'motion_ctrl.soak', '--visitors', '50', '--parallel', '2',
+        [sys.executable, '-m', 'motion_ctrl.tools.soak', '--visitors', '50', '--parallel', '2',
          '--interval', '0.5', '--busy', '0', '--record', '-o', str(tmp_path)],
         env=node_env, capture_output=True, text=True, timeout=280)
     out = run.stdout + run.stderr

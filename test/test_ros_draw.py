@@ -16,7 +16,7 @@ import sys
 def test_draw_circle_over_dds(tmp_path, node_env, slow_watchdog):
     # The DDS tests' wider feedback watchdog (conftest.slow_watchdog, README Notes, issue 11).
     params = [f'--param={k}:={v}' for k, v in slow_watchdog.items()]
-    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.draw', '--shapes', 'circle',
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.draw', '--shapes', 'circle',
                           '-o', str(tmp_path), *params], env=node_env, capture_output=True,
                          text=True, timeout=120)
     out = run.stdout + run.stderr

@@ -1,7 +1,7 @@
 """ros_env: the shared-memory leftovers of dead DDS processes are removed, live ones kept."""
 import fcntl
 
-from motion_ctrl import ros_env
+from motion_ctrl.ros import ros_env
 
 
 def test_clean_zombie_shm_removes_only_what_dead_processes_left(tmp_path):

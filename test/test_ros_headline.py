@@ -3,8 +3,8 @@
 import pytest
 
 from msg_defs.status import Status
-from motion_ctrl.client import SlideClient
-from motion_ctrl.processes import start_slide
+from motion_ctrl.ros.client import SlideClient
+from motion_ctrl.ros.processes import start_slide
 
 INCH = 0.0254
 COUNT = INCH / 10000

@@ -9,8 +9,8 @@ from rclpy.parameter import (get_parameter_value, parameter_dict_from_yaml_file,
                              parameter_value_to_python)
 from rclpy.parameter_client import AsyncParameterClient
 
-from motion_ctrl.client import SlideClient
-from motion_ctrl.processes import NodeProcess, params_dir
+from motion_ctrl.ros.client import SlideClient
+from motion_ctrl.ros.processes import NodeProcess, params_dir
 
 COUNT = 0.0254 / 10000
 REPO = pathlib.Path(__file__).resolve().parent.parent

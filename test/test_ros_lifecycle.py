@@ -13,8 +13,8 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from motion_ctrl.client import SlideClient  # noqa: E402
-from motion_ctrl.processes import NodeProcess, params_dir  # noqa: E402
+from motion_ctrl.ros.client import SlideClient  # noqa: E402
+from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
@@ -81,7 +81,7 @@ def bad_runs(tmp_path_factory, node_env):
         bad = d / f'{case}.yaml'
         bad.write_text(f'{node}:\n  ros__parameters:\n'
                        + ''.join(f'    {ln}\n' for ln in lines))
-        args = [sys.executable, '-m', f'motion_ctrl.{module}', '--ros-args',
+        args = [sys.executable, '-m', f'motion_ctrl.ros.{module}', '--ros-args',
                 '--params-file', str(params_dir() / f'{node}.yaml'), '--params-file', str(bad)]
         procs[case] = (subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                         text=True, env=node_env), time.monotonic(), bad)
@@ -116,7 +116,7 @@ def test_malformed_params_file_exits_naming_the_file(tmp_path, node_env):
     2 at once with a line naming the file (after rcl's own log line), no traceback."""
     bad = tmp_path / 'broken.yaml'
     bad.write_text('controller:\n  ros__parameters:\n    x.kp: [16000.0\n')
-    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.controller_node', '--ros-args',
+    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.ros.controller_node', '--ros-args',
                         '--params-file', str(bad)], capture_output=True, text=True, timeout=30,
                        env=node_env)
     assert r.returncode == 2, (r.returncode, r.stderr)
@@ -133,7 +133,7 @@ def test_unquoted_axis_names_that_are_yaml_booleans_are_refused_with_the_fix(tmp
     f = tmp_path / 'two_axes.yaml'
     f.write_text('controller:\n  ros__parameters:\n    axes: [x, y]\n')
     extra = ['--params-file', str(f)] if how == 'params-file' else ['-p', 'axes:=[x,y]']
-    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.controller_node', '--ros-args',
+    r = subprocess.run([sys.executable, '-m', 'motion_ctrl.ros.controller_node', '--ros-args',
                         *extra], capture_output=True, text=True, timeout=30, env=node_env)
     assert r.returncode == 2, (r.returncode, r.stderr)
     last = r.stderr.strip().splitlines()[-1]
@@ -158,7 +158,7 @@ def test_nodes_do_not_outlive_a_killed_starter(node_env, tmp_path):
     starter = subprocess.Popen(
         [sys.executable, '-c',
          'import sys, time\n'
-         'from motion_ctrl.processes import NodeProcess, params_dir\n'
+         'from motion_ctrl.ros.processes import NodeProcess, params_dir\n'
          f"node = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path={str(log)!r})\n"
          'print(node.proc.pid, flush=True)\n'
          'time.sleep(60)\n'],
@@ -205,7 +205,7 @@ def startup_runs(tmp_path_factory, node_env):
         if text is not None:
             f = d / f'{case}.yaml'
             f.write_text(text)
-        args = [sys.executable, '-m', f'motion_ctrl.{module}', '--ros-args',
+        args = [sys.executable, '-m', f'motion_ctrl.ros.{module}', '--ros-args',
                 '--params-file', str(f)] + extra
         procs[case] = (subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                         text=True, env=node_env), f)

@@ -30,8 +30,8 @@ from sensor_msgs.msg import JointState  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
-from motion_ctrl.client import SlideClient  # noqa: E402
-from motion_ctrl.processes import NodeProcess, params_dir  # noqa: E402
+from motion_ctrl.ros.client import SlideClient  # noqa: E402
+from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401

@@ -2,9 +2,9 @@
 import pytest
 
 from msg_defs.status import Status
-from motion_ctrl import scenarios
-from motion_ctrl.harness import Harness
-from motion_ctrl.registers import INCH
+from motion_ctrl.tools import scenarios
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.registers import INCH
 
 
 def test_forward_one_inch_move_lands_within_a_count():

@@ -1,4 +1,4 @@
-"""Unit tests of motion_ctrl.servo_law (PMAC PID, RMC I-PD, velocity forms) and of the servo
+"""Unit tests of motion_ctrl.core.servo_law (PMAC PID, RMC I-PD, velocity forms) and of the servo
 registers in the register table.
 
 Every expected number is worked by hand from the manuals' equations (REFERENCE.md, "Motion control
@@ -15,10 +15,10 @@ import math
 import numpy as np
 import pytest
 
-from motion_ctrl import notch
-from motion_ctrl.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, MODES, axis_defaults,
+from motion_ctrl.core import notch
+from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, MODES, axis_defaults,
                                    consistency)
-from motion_ctrl.servo_law import ServoLaw
+from motion_ctrl.core.servo_law import ServoLaw
 
 T = 1e-3
 HALF_COUNT = 0.5 * 2.54e-6      # half a linear count of the Galil slide, m

@@ -2,9 +2,9 @@
 watchdog, the loop-closing gate, scheduled targets and register sets applied together."""
 import pytest
 
-from motion_ctrl.axis import Axis
-from motion_ctrl.registers import AXIS_REGISTERS, axis_defaults
-from motion_ctrl.servo_loop import STREAM_SETTLE, ServoLoop
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.core.servo_loop import STREAM_SETTLE, ServoLoop
 from msg_defs.status import Status as S
 
 T = 1e-3
@@ -106,7 +106,7 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     one the first correction was for (stale or wrong readings, a blocked slide), the
     corrections end instead of driving the slide away (correction_max_moves is 200), and the
     loop says so once."""
-    from motion_ctrl.dual_loop import SampledCorrection
+    from motion_ctrl.core.dual_loop import SampledCorrection
     c = SampledCorrection()
     c.configure(2 * 2.54e-6, 200, 1 / 2.54e-6, 0.02)
     c.start_now()

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from msg_defs.status import Status
-from motion_ctrl import notch
-from motion_ctrl.harness import Harness
-from motion_ctrl.plant import SlidePlant
-from motion_ctrl.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.core import notch
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.sim.plant import SlidePlant
+from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 
 INCH = 0.0254
 COUNT = INCH / 10000            # one linear (load) encoder count, 2.54 um

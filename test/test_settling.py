@@ -1,4 +1,4 @@
-"""Tests of motion_ctrl.settling: RMP settling criteria and motion events (seed 004).
+"""Tests of motion_ctrl.core.settling: RMP settling criteria and motion events (seed 004).
 
 Scripted sequences of update() calls with explicit numbers; dt = 1 ms, settling_time = 10 ms,
 so "held for settling_time" means exactly 10 ticks after the first tick where the criteria hold.
@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from motion_ctrl.settling import MOTION_BITS, TIME_EPSILON, Settling
+from motion_ctrl.core.settling import MOTION_BITS, TIME_EPSILON, Settling
 from msg_defs.status import Status
 
 DT = 0.001

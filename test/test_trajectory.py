@@ -1,4 +1,4 @@
-"""Tests for motion_ctrl.trajectory (issue 16: JointTrajectory as PVT; PMAC PVT mode, the
+"""Tests for motion_ctrl.core.trajectory (issue 16: JointTrajectory as PVT; PMAC PVT mode, the
 joint_trajectory_controller's splines).
 
 Numbers: the axes' default registers (soft limits ±0.5 m, max_velocity 0.1 m/s, max_acceleration
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.interpolate import BPoly
 
-from motion_ctrl.registers import axis_defaults
-from motion_ctrl.trajectory import (AxisLimits, AxisState, Trajectory, check, circle,
+from motion_ctrl.core.registers import axis_defaults
+from motion_ctrl.core.trajectory import (AxisLimits, AxisState, Trajectory, check, circle,
                                     contour_error, rounded_square)
 
 MM = 1e-3

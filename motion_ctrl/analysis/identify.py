@@ -1,0 +1,621 @@
+"""Measuring a servo axis: frequency response, a two-mass model fitted to it, loop margins.
+
+What a drive's or controller's tuning software does with a frequency-response measurement
+(Kollmorgen WorkBench's Bode plot and Performance Servo Tuner, Galil's and PMAC's tuning tools),
+as library functions on sampled records (numpy arrays, one sample per servo tick):
+
+1. :func:`frequency_response` — the frequency response from the amplifier command u [V] to a
+   position y (scipy.signal.welch / csd / coherence, Hann-windowed averaged segments):
+
+   * open loop, G = S_uy / S_uu, with the coherence of u and y;
+   * in closed loop with the injected excitation r as instrument, G = S_ry / S_ru. Feedback
+     makes u depend on the noise in y, which biases S_uy / S_uu towards −1/C where the noise
+     dominates; r is uncorrelated with that noise, so S_ry / S_ru is not biased (the
+     "indirect"/"joint input-output" estimate that drives measure with the loop closed).
+
+2. :func:`fit_two_mass` — the two-mass model a motion engineer reads off a Bode plot, fitted by
+   scipy.optimize.least_squares on log-magnitude and phase, weighted by coherence, over the
+   points of the band whose coherence reaches a threshold. Volts to motor position:
+
+       G_m(s) = K · (1 + 2ζa s/ωa + s²/ωa²) / ( s (s + σ) (1 + 2ζr s/ωr + s²/ωr²) )
+
+   and (optionally, fitted jointly) volts to load position
+
+       G_l(s) = K · (1 + τ s) / ( s (s + σ) (1 + 2ζr s/ωr + s²/ωr²) )
+
+   K: acceleration per volt of the whole axis [m/s² per V]; its inverse is the total inertia
+   in volts per m/s² — the acceleration feedforward kaff of a PMAC (Ixx35) or Galil (FA);
+   σ: viscous pole (viscous friction / total inertia); ωa, ζa: the anti-resonance (the load
+   alone on the screw's spring: ωa² = k / M_load); ωr, ζr: the resonance (ωr² = k (1/M_motor +
+   1/M_load)), so the inertia ratio is M_load / M_motor = (ωr/ωa)² − 1 and the split of the
+   inertia, the stiffness and the viscous friction follow. τ = screw damping / stiffness.
+   With the amplifier's force (or torque) per volt given, the inertias come out in kg (kg·m²).
+   The model is evaluated as the servo loop samples it: the zero-order-hold equivalent at the
+   servo period (the DAC holds each command for a tick), plus whole ticks of delay.
+
+3. :func:`margins` — gain margin, phase margin and crossovers of an open loop given as a
+   sampled frequency response (interpolated on log frequency), optionally with a transport
+   delay; :func:`pid_open_loop` builds that open loop for this package's servo law (PMAC PID,
+   notch, dual loop) from a measured or fitted plant. The pass marks are Kollmorgen
+   WorkBench's Performance Servo Tuner defaults, 45° phase margin and 8 dB gain margin (its
+   "stiff" set; 55°/12 dB, 60°/20 dB are its milder ones).
+
+Units follow the controller's registers: positions in metres (load-equivalent on the motor
+encoder, as `Axis` converts counts), volts, seconds. No rclpy: the ROS tools that excite the
+loop inside the servo tick and gather the records are not written yet (README, "Tuning an
+axis").
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+from scipy import signal as sps
+
+from motion_ctrl.core.notch import Biquad
+
+__all__ = [
+    'FrequencyResponse', 'frequency_response', 'stepped_sine_response',
+    'TwoMassModel', 'TwoMassFit', 'fit_two_mass',
+    'Margins', 'margins', 'pid_response', 'pid_open_loop',
+    'GAIN_MARGIN_DB', 'PHASE_MARGIN_DEG',
+]
+
+#: Kollmorgen WorkBench Performance Servo Tuner's default ("stiff") stability targets.
+GAIN_MARGIN_DB = 8.0
+PHASE_MARGIN_DEG = 45.0
+
+TWO_PI = 2.0 * math.pi
+
+
+# ================================================================================================
+# validation
+
+def _record(name, x, n=None) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be a sequence of numbers') from None
+    if a.ndim != 1:
+        raise ValueError(f'{name} must be one-dimensional, got shape {a.shape}')
+    if n is not None and a.size != n:
+        raise ValueError(f'{name} has {a.size} samples, u has {n}: records must be the same '
+                         'length (one sample per servo tick)')
+    if not np.all(np.isfinite(a)):
+        bad = int(np.flatnonzero(~np.isfinite(a))[0])
+        raise ValueError(f'{name} holds a non-finite value at sample {bad}')
+    return a
+
+
+def _positive(name, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f'{name} must be a number, got {v!r}')
+    v = float(v)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f'{name} must be a finite number > 0, got {v!r}')
+    return v
+
+
+# ================================================================================================
+# 1. frequency response
+
+@dataclass
+class FrequencyResponse:
+    """A measured frequency response: `response[i]` at `freq[i]` Hz, with its coherence (the
+    one used to weight and select points; for the instrument estimate the lower of the
+    coherences r→u and r→y, both kept in `coherence_ru`, `coherence_ry`)."""
+    freq: np.ndarray
+    response: np.ndarray
+    coherence: np.ndarray
+    sample_rate: float
+    method: str                      # 'open_loop' | 'instrument' | 'stepped_sine'
+    coherence_ru: np.ndarray | None = None
+    coherence_ry: np.ndarray | None = None
+
+    def select(self, band=None, min_coherence=0.0) -> np.ndarray:
+        """Boolean mask of the points inside `band` (Hz, inclusive) with coherence >=
+        min_coherence."""
+        m = self.coherence >= min_coherence
+        if band is not None:
+            lo, hi = band
+            m &= (self.freq >= lo) & (self.freq <= hi)
+        return m
+
+    def magnitude_db(self) -> np.ndarray:
+        return 20.0 * np.log10(np.abs(self.response))
+
+    def phase_deg(self) -> np.ndarray:
+        return np.degrees(np.angle(self.response))
+
+
+def frequency_response(u, y, sample_rate, *, r=None, nperseg=None, noverlap=None,
+                       window='hann', detrend='linear', difference=False) -> FrequencyResponse:
+    """Estimate the frequency response from u to y, sampled at `sample_rate` Hz.
+
+    Without `r`: G = S_uy / S_uu (open loop: u is the excitation itself), coherence γ²_uy.
+    With `r`, the excitation that was injected (closed loop, u = r − C y or u = r + …):
+    G = S_ry / S_ru, coherence min(γ²_ru, γ²_ry).
+
+    Spectra by Welch's method (scipy.signal.welch / csd / coherence): segments of `nperseg`
+    samples (default: one second, at most a quarter of the record, so at least seven averages
+    with the default 50 % overlap), `window`, `detrend` per segment ('linear' by default: a
+    position record of a free axis drifts). `difference=True` runs the estimate on the first
+    differences of every record — the same filter on input and output leaves G unchanged while
+    an integrating plant's drift becomes a stationary velocity; use it when the position wanders
+    far over the record. The 0 Hz bin is dropped.
+    """
+    fs = _positive('sample_rate', sample_rate)
+    u = _record('u', u)
+    y = _record('y', y, u.size)
+    if r is not None:
+        r = _record('r', r, u.size)
+    if difference:
+        u, y = np.diff(u), np.diff(y)
+        r = None if r is None else np.diff(r)
+    n = u.size
+    if nperseg is None:
+        nperseg = min(int(round(fs)), n // 4)
+    if isinstance(nperseg, bool) or not isinstance(nperseg, (int, np.integer)):
+        raise ValueError(f'nperseg must be an integer, got {nperseg!r}')
+    if not 8 <= nperseg <= n:
+        raise ValueError(f'nperseg must be between 8 and the record length {n}, got {nperseg} '
+                         f'(record of {n} samples at {fs:g} Hz)')
+    kw = dict(fs=fs, window=window, nperseg=int(nperseg), noverlap=noverlap, detrend=detrend)
+    with np.errstate(divide='ignore', invalid='ignore'):     # the 0 Hz bin, dropped below
+        return _welch_estimate(u, y, r, fs, kw)
+
+
+def _welch_estimate(u, y, r, fs, kw) -> FrequencyResponse:
+    if r is None:
+        f, s_uu = sps.welch(u, **kw)
+        _, s_uy = sps.csd(u, y, **kw)          # scipy: conj(U)·Y
+        _, coh = sps.coherence(u, y, **kw)
+        g = s_uy / s_uu
+        res = FrequencyResponse(f[1:], g[1:], coh[1:], fs, 'open_loop')
+    else:
+        f, s_ru = sps.csd(r, u, **kw)
+        _, s_ry = sps.csd(r, y, **kw)
+        _, c_ru = sps.coherence(r, u, **kw)
+        _, c_ry = sps.coherence(r, y, **kw)
+        g = s_ry / s_ru
+        res = FrequencyResponse(f[1:], g[1:], np.minimum(c_ru, c_ry)[1:], fs, 'instrument',
+                                c_ru[1:], c_ry[1:])
+    # Bins the excitation does not reach (a PRBS's nulls): no estimate, coherence 0.
+    bad = ~(np.isfinite(res.response) & np.isfinite(res.coherence))
+    res.response[bad] = np.nan
+    res.coherence[bad] = 0.0
+    return res
+
+
+def stepped_sine_response(excitation, u, y, *, difference=True) -> FrequencyResponse:
+    """Frequency response of a stepped-sine run (motion_ctrl.core.excitation.stepped_sine).
+
+    For each segment, over its measured window (whole cycles), u and y are each fitted by
+    least squares with a sine and cosine at the segment's frequency plus a quadratic drift
+    (1, t, t²) — the sine fit of IEEE 1057 — and G is the ratio of the two phasors. In closed
+    loop this is already the instrument estimate: only what is coherent with the injected sine
+    is kept. With `difference` (default) the fit runs on the first differences of u and y,
+    which leaves G unchanged: a free axis' position drifts away (by far more than the sine's
+    amplitude, and not as a polynomial) while its velocity only settles.
+
+    `coherence` is here the share of y's power (its drift removed) in the window that the sine
+    explains (1 = a clean sine; noise, friction harmonics and an unsettled transient lower
+    it).
+    """
+    segs = getattr(excitation, 'segments', None)
+    if not segs:
+        raise ValueError('excitation has no stepped-sine segments')
+    u = _record('u', u)
+    y = _record('y', y, u.size)
+    if u.size < segs[-1].stop:
+        raise ValueError(f'records of {u.size} samples are shorter than the excitation '
+                         f'({segs[-1].stop} ticks)')
+    if difference:
+        u = np.diff(u, prepend=u[0])
+        y = np.diff(y, prepend=y[0])
+    fs = excitation.sample_rate
+    freq, resp, share = [], [], []
+    for s in segs:
+        n = s.stop - s.measure_start
+        k = np.arange(n)
+        t = k / n - 0.5
+        wt = 2.0 * np.pi * s.frequency * k / fs
+        basis = np.column_stack([np.cos(wt), np.sin(wt), np.ones(n), t, t * t])
+        coef, *_ = np.linalg.lstsq(basis, np.column_stack([u[s.measure_start:s.stop],
+                                                           y[s.measure_start:s.stop]]),
+                                   rcond=None)
+        uc = complex(coef[0, 0], -coef[1, 0])      # a cos + b sin = Re[(a − j b) e^{jωt}]
+        yc = complex(coef[0, 1], -coef[1, 1])
+        freq.append(s.frequency)
+        resp.append(yc / uc)
+        rest = y[s.measure_start:s.stop] - basis[:, 2:] @ coef[2:, 1]
+        total = float(np.dot(rest, rest))
+        sine = float(np.sum((basis[:, :2] @ coef[:2, 1]) ** 2))
+        share.append(min(1.0, sine / total) if total > 0 else 0.0)
+    return FrequencyResponse(np.array(freq), np.array(resp), np.array(share), fs,
+                             'stepped_sine')
+
+
+# ================================================================================================
+# 2. the two-mass model
+
+@dataclass(frozen=True)
+class TwoMassModel:
+    """Volts → motor (and load) position of a motor driving a load through a spring.
+
+    accel_per_volt K [m/s² per V], viscous_pole σ [1/s], resonance / antiresonance [Hz] with
+    their damping ratios, load_zero τ [s] (screw damping / stiffness, load output only)."""
+    accel_per_volt: float
+    viscous_pole: float
+    resonance_hz: float
+    resonance_damping: float
+    antiresonance_hz: float
+    antiresonance_damping: float
+    load_zero: float = 0.0
+
+    def _poles_and_numerator(self, output):
+        K, sig = self.accel_per_volt, self.viscous_pole
+        wr, zr = TWO_PI * self.resonance_hz, self.resonance_damping
+        wa, za = TWO_PI * self.antiresonance_hz, self.antiresonance_damping
+        wd = wr * math.sqrt(max(1.0 - zr * zr, 0.0))
+        p = np.array([0.0, -sig, complex(-zr * wr, wd), complex(-zr * wr, -wd)])
+        if output == 'motor':
+            c = K * wr * wr / (wa * wa)
+            num = np.array([c, c * 2.0 * za * wa, c * wa * wa])        # K ωr²/ωa² (s² + …)
+        elif output == 'load':
+            num = np.array([K * wr * wr * self.load_zero, K * wr * wr])
+        else:
+            raise ValueError(f"output must be 'motor' or 'load', got {output!r}")
+        return p, num
+
+    def response(self, freq, *, output='motor', sample_period=None, delay_ticks=0):
+        """Complex response at `freq` Hz [m/V].
+
+        With `sample_period` T: the zero-order-hold equivalent at that period,
+        Σ r_i (e^{p_i T} − 1)/p_i / (z − e^{p_i T}) over the poles p_i with residues r_i — the
+        sample y[n] taken before the command u[n] applies, as in a servo tick, so one tick of
+        delay is in it — times z^−delay_ticks. Without: the continuous G(jω) (delay_ticks must
+        then be 0)."""
+        f = np.asarray(freq, dtype=float)
+        p, num = self._poles_and_numerator(output)
+        if sample_period is None:
+            if delay_ticks:
+                raise ValueError('delay_ticks needs sample_period')
+            s = 1j * TWO_PI * f
+            den = s * (s - p[1]) * (s - p[2]) * (s - p[3])
+            return np.polyval(num, s) / den
+        T = float(sample_period)
+        z = np.exp(1j * TWO_PI * f * T)
+        h = np.zeros(f.shape, dtype=complex)
+        for i, pi in enumerate(p):
+            others = np.delete(p, i)
+            res = np.polyval(num, pi) / np.prod(pi - others)
+            phi = T if pi == 0 else (np.exp(pi * T) - 1.0) / pi
+            h = h + res * phi / (z - np.exp(pi * T))
+        return h * z ** (-int(delay_ticks))
+
+
+@dataclass
+class TwoMassFit:
+    """The fitted model and what an engineer reads from it.
+
+    Inertias are in the controller's units, volts per m/s² (the acceleration feedforward kaff
+    that cancels them); with `force_per_volt` [N/V] given also in kg (`*_mass`). A rotary motor
+    measured in load-equivalent metres: J = M · (lead / 2π)²."""
+    model: TwoMassModel
+    accel_per_volt: float            # K [m/s² per V]
+    inertia: float                   # 1/K, total [V·s²/m] (= kaff)
+    motor_inertia: float             # [V·s²/m]
+    load_inertia: float              # [V·s²/m]
+    inertia_ratio: float             # load / motor
+    stiffness: float                 # [V/m]
+    viscous: float                   # [V per m/s]
+    resonance_hz: float
+    resonance_damping: float
+    antiresonance_hz: float
+    antiresonance_damping: float
+    band: tuple                      # (low, high) Hz of the points used
+    points: int                      # points used (coherence >= threshold, inside the band)
+    rms_error_db: float              # magnitude residual, rms over the points used
+    rms_error_deg: float             # phase residual, rms
+    force_per_volt: float | None = None
+    physical: dict = field(default_factory=dict)   # kg, N/m, N·s/m with force_per_volt
+    sample_period: float | None = None   # the model is sampled at this period (None: continuous)
+    delay_ticks: int = 0                 # whole ticks of delay fitted with
+
+    def response(self, freq, output='motor', extra_delay_ticks=0):
+        """The fitted model's response at `freq` Hz [m/V], sampled and delayed as it was
+        fitted (plus `extra_delay_ticks`)."""
+        return self.model.response(freq, output=output, sample_period=self.sample_period,
+                                   delay_ticks=self.delay_ticks + extra_delay_ticks)
+
+
+def _initial_guess(f, g):
+    """Resonance at the peak and anti-resonance at the dip (below it) of |G|·ω², K from the
+    plateau below the dip, σ from the low-frequency phase lead of G·(jω)²."""
+    w = TWO_PI * f
+    acc = g * (1j * w) ** 2
+    a = np.abs(acc)
+    ir = int(np.argmax(a))
+    fr = f[ir]
+    below = np.flatnonzero(f < fr)
+    if below.size >= 2 and a[below].min() < a[ir] / 2:
+        fa = f[below[int(np.argmin(a[below]))]]
+    else:
+        fa = fr / 1.05
+    low = np.flatnonzero(f < fa / 3)
+    if low.size < 3:
+        low = np.arange(min(3, f.size))
+    lowest = low[:3]
+    # Below the viscous pole |G|·ω² falls off as ω/σ: the plateau is the largest level.
+    K = float(np.median(np.sort(a[low])[-max(3, low.size // 2):]))
+    lead = np.angle(acc[lowest])
+    sig = float(np.median(w[lowest] * np.tan(np.clip(lead, 0.0, 1.4))))
+    return K, max(sig, 1e-2), fr, fa
+
+
+def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None, *,
+                 band=None, min_coherence=0.9, delay_ticks=0, sampled=True,
+                 force_per_volt=None, log_weight=True) -> TwoMassFit:
+    """Fit the two-mass model to a measured volts → motor position response (and, if given,
+    the volts → load position one, jointly: shared K, σ, resonance).
+
+    Points used: inside `band` (Hz; default all) with coherence >= `min_coherence` (0.9, as
+    drive tools grey out the rest). Residuals: natural log of model/measured — its real part
+    is the log-magnitude error, its imaginary part the phase error in radians — weighted by
+    √(γ²/(1 − γ²)) (the inverse of the estimate's relative scatter) and, with `log_weight`,
+    by √(Δf/f) so each decade counts alike. `sampled`: the model is the zero-order-hold
+    equivalent at the record's sample period plus `delay_ticks` (as a servo tick measures it;
+    False: the continuous model, for a response that is not sampled-data).
+
+    The viscous friction shows only as phase lead near its pole σ (a fraction of a hertz on the
+    default slide): the band must reach down to a few times σ/2π for it to mean anything; the
+    inertias and the resonances do not need that.
+    """
+    fpv = None if force_per_volt is None else _positive('force_per_volt', force_per_volt)
+    sets = [('motor', motor)] + ([('load', load)] if load is not None else [])
+    data = []
+    for name, fr in sets:
+        if not isinstance(fr, FrequencyResponse):
+            raise ValueError(f'{name} must be a FrequencyResponse')
+        m = fr.select(band, min_coherence)
+        if np.count_nonzero(m) < 8:
+            raise ValueError(f'{name}: only {np.count_nonzero(m)} points in band {band} have '
+                             f'coherence >= {min_coherence:g}; need at least 8 (more '
+                             'excitation, a longer record, or a narrower band)')
+        f = fr.freq[m]
+        coh = np.clip(fr.coherence[m], 0.0, 0.999)
+        w = np.sqrt(coh / (1.0 - coh))
+        if log_weight:
+            df = np.gradient(f) if f.size > 1 else np.ones(1)
+            w = w * np.sqrt(np.abs(df) / f)
+        w = w / np.sqrt(np.mean(w ** 2))
+        data.append((name, f, fr.response[m], w))
+    T = 1.0 / motor.sample_rate if sampled else None
+    nyq = motor.sample_rate / 2.0
+    if not sampled and delay_ticks:
+        raise ValueError('delay_ticks applies to a sampled model')
+
+    _, fm, gm, _ = data[0]
+    K0, sig0, fr0, fa0 = _initial_guess(fm, gm)
+    if not fr0 > fa0:
+        fa0 = fr0 / 1.05
+
+    def unpack(x):
+        K, sig, fa, rho, zr, za = np.exp(x[:6])
+        fr = fa * math.sqrt(1.0 + rho)
+        tau = math.exp(x[6]) if load is not None else 0.0
+        return TwoMassModel(K, sig, fr, zr, fa, za, tau)
+
+    def residuals(x):
+        mdl = unpack(x)
+        if sampled and mdl.resonance_hz >= nyq:
+            return np.full(sum(2 * d[1].size for d in data), 1e3)
+        out = []
+        for name, f, g, w in data:
+            h = mdl.response(f, output=name, sample_period=T, delay_ticks=delay_ticks)
+            e = np.log(h / g)
+            out.append(w * e.real)
+            out.append(w * e.imag)
+        return np.concatenate(out)
+
+    lo_f = min(d[1][0] for d in data)
+    hi_f = max(d[1][-1] for d in data)
+    lb = [math.log(K0 / 100), math.log(1e-3), math.log(lo_f / 2), math.log(1e-4),
+          math.log(1e-4), math.log(1e-4)]
+    ub = [math.log(K0 * 100), math.log(TWO_PI * hi_f), math.log(nyq), math.log(1e4),
+          math.log(0.95), math.log(0.95)]
+    best = None
+    for z0 in (0.01, 0.05, 0.2):
+        x0 = [math.log(K0), math.log(min(max(sig0, 2e-3), TWO_PI * hi_f / 2)), math.log(fa0),
+              math.log((fr0 / fa0) ** 2 - 1.0), math.log(z0), math.log(z0)]
+        lbi, ubi = list(lb), list(ub)
+        if load is not None:
+            x0.append(math.log(2 * z0 / (TWO_PI * fa0)))
+            lbi.append(math.log(1e-9))
+            ubi.append(math.log(1.0))
+        start = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)
+        sol = optimize.least_squares(residuals, start, bounds=(lbi, ubi), x_scale=1.0,
+                                     method='trf')
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    mdl = unpack(best.x)
+    # Unweighted residuals over the points used, for the report.
+    mag_parts, ph_parts = [], []
+    for name, f, g, _ in data:
+        e = np.log(mdl.response(f, output=name, sample_period=T, delay_ticks=delay_ticks) / g)
+        mag_parts.append(e.real * 20.0 / math.log(10.0))
+        ph_parts.append(np.degrees(e.imag))
+    mags, phs = np.concatenate(mag_parts), np.concatenate(ph_parts)
+    K = mdl.accel_per_volt
+    rho = (mdl.resonance_hz / mdl.antiresonance_hz) ** 2 - 1.0
+    inertia = 1.0 / K
+    motor_i = inertia / (1.0 + rho)
+    load_i = inertia - motor_i
+    stiffness = load_i * (TWO_PI * mdl.antiresonance_hz) ** 2
+    viscous = mdl.viscous_pole * inertia
+    physical = {}
+    if fpv is not None:
+        physical = dict(total_mass=inertia * fpv, motor_mass=motor_i * fpv,
+                        load_mass=load_i * fpv, stiffness=stiffness * fpv,
+                        viscous=viscous * fpv)
+    fit = TwoMassFit(mdl, K, inertia, motor_i, load_i, rho, stiffness, viscous,
+                     mdl.resonance_hz, mdl.resonance_damping, mdl.antiresonance_hz,
+                     mdl.antiresonance_damping, (float(lo_f), float(hi_f)), int(mags.size),
+                     float(np.sqrt(np.mean(mags ** 2))), float(np.sqrt(np.mean(phs ** 2))),
+                     force_per_volt, physical, T, int(delay_ticks))
+    return fit
+
+
+# ================================================================================================
+# 3. margins of an open loop
+
+@dataclass
+class Margins:
+    """Stability margins of an open loop L (negative feedback: the closed loop is L/(1+L)).
+
+    gain_margin_db: how far the gain may rise, the smallest −20·log10|L| at a phase crossover
+    (phase −180° modulo 360°) where |L| < 1 (inf if none); lower_gain_margin_db: how far it may
+    fall, the smallest 20·log10|L| at a phase crossover where |L| > 1 (the conditionally stable
+    low end of a loop with an integrator and a double-integrating plant; inf if none).
+    phase_margin_deg: the smallest 180° + ∠L at a gain crossover (|L| = 1), in (−180, 180];
+    crossover_hz: that crossover; delay_margin_s: the smallest added delay that would use the
+    phase margin up, PM / ω over the gain crossovers."""
+    gain_margin_db: float
+    phase_crossover_hz: float | None
+    phase_margin_deg: float
+    crossover_hz: float | None
+    delay_margin_s: float
+    lower_gain_margin_db: float = math.inf
+    gain_crossovers_hz: list = field(default_factory=list)
+    phase_crossovers_hz: list = field(default_factory=list)
+
+    def problems(self, gain_margin_db=GAIN_MARGIN_DB, phase_margin_deg=PHASE_MARGIN_DEG):
+        """What falls short of the targets (default: Kollmorgen's 8 dB and 45°), as text."""
+        out = []
+        if self.crossover_hz is None:
+            out.append('no gain crossover in the frequencies given')
+        elif self.phase_margin_deg < phase_margin_deg:
+            out.append(f'phase margin {self.phase_margin_deg:.1f}° < {phase_margin_deg:g}° at '
+                       f'{self.crossover_hz:.1f} Hz')
+        if self.gain_margin_db < gain_margin_db:
+            out.append(f'gain margin {self.gain_margin_db:.1f} dB < {gain_margin_db:g} dB at '
+                       f'{self.phase_crossover_hz:.1f} Hz')
+        return out
+
+    def ok(self, gain_margin_db=GAIN_MARGIN_DB, phase_margin_deg=PHASE_MARGIN_DEG) -> bool:
+        return not self.problems(gain_margin_db, phase_margin_deg)
+
+
+def margins(freq, loop, *, delay=0.0) -> Margins:
+    """Gain and phase margins of the open loop `loop` (complex, at ascending `freq` Hz),
+    with an extra transport `delay` [s] (e.g. one servo tick, 1/rate) multiplied in.
+
+    Crossovers are found between samples and interpolated linearly in log frequency (log
+    magnitude, unwrapped phase), as read off a measured Bode plot; the grid should resolve the
+    phase (a few points per resonance width). Margins say nothing about an open loop that is
+    itself unstable (Nyquist): use them on stable plants, integrators allowed.
+    """
+    f = _record('freq', freq)
+    if f.size < 2:
+        raise ValueError('freq needs at least 2 points')
+    if not (np.all(f > 0) and np.all(np.diff(f) > 0)):
+        raise ValueError('freq must be positive and strictly ascending')
+    L = np.asarray(loop, dtype=complex)
+    if L.shape != f.shape or not np.all(np.isfinite(L)) or np.any(L == 0):
+        raise ValueError('loop must be finite, non-zero and as long as freq')
+    d = float(delay)
+    if not (math.isfinite(d) and d >= 0.0):
+        raise ValueError(f'delay must be a finite number >= 0 s, got {delay!r}')
+    L = L * np.exp(-1j * TWO_PI * f * d)
+    lf = np.log(f)
+    lm = np.log(np.abs(L))
+    ph = np.unwrap(np.angle(L))
+
+    def at(i, t, arr):
+        return arr[i] + t * (arr[i + 1] - arr[i])
+
+    gcs = []                                       # (f, pm_deg)
+    for i in range(f.size - 1):
+        a, b = lm[i], lm[i + 1]
+        if a == 0.0 or (a < 0.0) != (b < 0.0) and b != 0.0:
+            t = 0.0 if a == 0.0 else a / (a - b)
+            fc = math.exp(at(i, t, lf))
+            pm = (math.degrees(at(i, t, ph)) + 180.0) % 360.0
+            if pm > 180.0:
+                pm -= 360.0
+            gcs.append((fc, pm))
+    if lm[-1] == 0.0:
+        pm = (math.degrees(ph[-1]) + 180.0) % 360.0
+        gcs.append((float(f[-1]), pm - 360.0 if pm > 180.0 else pm))
+    psi = (ph + math.pi) / TWO_PI                 # integer where the phase is −180° mod 360°
+    k = np.floor(psi)
+    pcs = []                                       # (f, gm_db)
+    for i in range(f.size - 1):
+        if k[i] != k[i + 1]:
+            target = max(k[i], k[i + 1])
+            t = (target - psi[i]) / (psi[i + 1] - psi[i])
+            fp = math.exp(at(i, t, lf))
+            pcs.append((fp, -at(i, t, lm) * 20.0 / math.log(10.0)))
+    up = [(g, fp) for fp, g in pcs if g > 0.0]
+    down = [(-g, fp) for fp, g in pcs if g <= 0.0]
+    gm, fpc = min(up) if up else (math.inf, None)
+    lgm = min(down)[0] if down else math.inf
+    crossover: float | None
+    if gcs:
+        pm, crossover = min((p, c) for c, p in gcs)
+        dm = min(max(p, 0.0) / 360.0 / c for c, p in gcs)
+    else:
+        pm, crossover, dm = math.inf, None, math.inf
+    return Margins(float(gm), fpc, float(pm), crossover, float(dm), float(lgm),
+                   [float(g[0]) for g in gcs], [float(p[0]) for p in pcs])
+
+
+def pid_response(freq, *, kp, ki, kd, servo_period, notch=(0.0, 0.0, 0.0, 0.0)):
+    """The feedback part of this package's PMAC PID (motion_ctrl.core.servo_law), per tick:
+
+        u = F(z) · [ (kp + ki·T·z/(z − 1)) · (−x_pos) − kd · (1 − z⁻¹)/T · x_vel ]
+
+    (the integrator adds ki·FE·T before the output; velocity is the backward difference of the
+    encoder position; F the notch, Ixx36–39, normalised to unity DC gain). Returns
+    (P(z), D(z)): the transfer from the position-loop encoder and from the velocity-loop encoder
+    to −u [V/m]. Feedforward (kvff, kaff, friction) acts on the command, not on the loop."""
+    T = _positive('servo_period', servo_period)
+    f = np.asarray(freq, dtype=float)
+    z = np.exp(1j * TWO_PI * f * T)
+    Biquad.validate(*notch)
+    n1, n2, d1, d2 = notch
+    zi = 1.0 / z
+    F = (1.0 + n1 * zi + n2 * zi * zi) / (1.0 + d1 * zi + d2 * zi * zi)
+    F = F * (1.0 + d1 + d2) / (1.0 + n1 + n2)
+    P = F * (kp + ki * T * z / (z - 1.0))
+    D = F * kd * (1.0 - zi) / T
+    return P, D
+
+
+def pid_open_loop(freq, registers, servo_period, position_plant, velocity_plant=None, *,
+                  latency_ticks=0):
+    """Open loop L(jω), broken at the amplifier input, of this package's PID on a plant given
+    as responses [m/V] at `freq` (measured or TwoMassFit.response):
+
+        L = z^−latency · [ P(z) · G_pos + D(z) · G_vel ]
+
+    G_pos: volts → the position-loop encoder, G_vel: volts → the velocity-loop encoder (the
+    same for `feedback` motor / load; motor and load for Galil's dual loop DV). `registers`:
+    a dict with kp, ki, kd and optionally notch_n1, notch_n2, notch_d1, notch_d2 (the
+    controller's register names and units). latency_ticks: whole ticks between the encoder
+    sample and the command (1 over DDS, as motion_ctrl.tools.tuning assumes). Feed it to
+    :func:`margins`.
+    """
+    gp = np.asarray(position_plant, dtype=complex)
+    gv = gp if velocity_plant is None else np.asarray(velocity_plant, dtype=complex)
+    notch = tuple(float(registers.get(k, 0.0)) for k in
+                  ('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2'))
+    P, D = pid_response(freq, kp=float(registers['kp']), ki=float(registers.get('ki', 0.0)),
+                        kd=float(registers.get('kd', 0.0)), servo_period=servo_period,
+                        notch=notch)
+    z = np.exp(1j * TWO_PI * np.asarray(freq, dtype=float) * servo_period)
+    return z ** (-int(latency_ticks)) * (P * gp + D * gv)

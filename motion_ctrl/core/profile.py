@@ -1,0 +1,437 @@
+"""Move generator (profiler) of one servo axis.
+
+Point-to-point and velocity (jog) profiles are time-optimal and planned with
+ruckig (L. Berscheid & T. Kroeger, "Jerk-limited Real-time Trajectory
+Generation with Arbitrary Target States", RSS 2021) within max_velocity,
+max_acceleration and max_jerk. max_jerk = 0 selects a trapezoidal
+(acceleration-limited) profile, which is ruckig with max_jerk = inf.
+
+ruckig is used offline: each re-plan (move_to / jog / stop) computes a whole
+trajectory once from the current unfiltered state, and every step() samples
+it at the segment time t. Sampling instead of ruckig's fixed-delta online
+update lets the caller step with whatever dt actually elapsed.
+
+On top of the profile sits Galil's IT ("independent time smoothing"): a
+first-order filter whose pole per servo sample T is (1 - IT), i.e. a
+continuous lag with tau = -T / ln(1 - IT). It is integrated exactly for the
+real dt of every step (first-order hold of the input), so it equals Galil's
+filter at dt = T and still behaves when a tick is late. Position, velocity
+and acceleration go through the same filter, so the commanded state stays
+continuous even where a trapezoid steps its acceleration.
+
+A third kind of segment is a path given from outside (`follow`): one axis's share of a timed
+multi-axis trajectory (PMAC PVT mode, motion_ctrl.core.trajectory), sampled at the same segment time
+as a ruckig plan, so every axis stepped with the same dt stays on one time base. Stops re-plan
+from the path's state with ruckig as from any move.
+
+Plain Python, no rclpy, deterministic: the only clock is the dt passed in.
+"""
+
+import math
+from typing import Protocol
+
+from ruckig import (ControlInterface, InputParameter, Result, Ruckig,
+                    RuckigError, Trajectory)
+
+__all__ = ['Path', 'Profile']
+
+
+class Path(Protocol):
+    """One axis's share of a timed trajectory, as `Profile.follow` samples it."""
+    duration: float                      # s
+    end: float                           # final position (m), reached at rest
+    extrema: tuple[float, float]         # (min, max) position over the path (m)
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """(position, velocity, acceleration) at t seconds from the start."""
+        ...
+
+_INF = math.inf
+
+# Residual tolerances for declaring the smoothed state equal to the raw one.
+# The exponential tail never reaches the raw value by itself; snapping only
+# below these keeps the final step invisible (far below any encoder count).
+_SNAP_POSITION = 1e-12   # m
+_SNAP_VELOCITY = 1e-9    # m/s
+_SNAP_ACCELERATION = 1e-6  # m/s^2
+
+_OK_RESULTS = (Result.Working, Result.Finished)
+
+
+def _finite(x):
+    try:
+        return math.isfinite(x)
+    except TypeError:
+        return False
+
+
+def _override(name, value, configured):
+    """A per-move limit: `configured` when None, else a finite value > 0 (ValueError)."""
+    if value is None:
+        return configured
+    if not (_finite(value) and value > 0):
+        raise ValueError(f'{name} override must be finite and > 0, got {value!r}')
+    return float(value)
+
+
+class Profile:
+    """Move generator of one axis; see the module docstring.
+
+    State after step():
+      position, velocity, acceleration              commanded (smoothed)
+      raw_position, raw_velocity, raw_acceleration  unfiltered profile
+      kind             'idle' | 'position' | 'velocity' | 'stop' | 'path'
+      target           final position of the current/last position move
+      target_velocity  velocity of the current velocity move, else None
+      done, at_target, moving  (properties)
+      duration         planned duration of the current ruckig segment (s)
+    """
+    # (set by _reset, which __init__ calls)
+    raw_position: float
+    raw_velocity: float
+    raw_acceleration: float
+    position: float
+    velocity: float
+    acceleration: float
+    kind: str
+    duration: float
+    _t: float
+    _raw_done: bool
+    _settled: bool
+    _seg_velocity: float
+    _path: Path | None
+    _offset: float
+
+    def __init__(self, position: float = 0.0):
+        if not _finite(position):
+            raise ValueError(f'initial position must be finite, got {position!r}')
+        position = float(position)
+
+        self.max_velocity: float | None = None
+        self.max_acceleration: float | None = None
+        self.max_jerk = 0.0
+        self.smoothing = 1.0
+        self.servo_period = 0.001
+        self._tau = 0.0
+
+        # Allocated once; re-plans reuse them, steps never allocate ruckig objects.
+        self._ruckig = Ruckig(1)
+        self._inp = InputParameter(1)
+        self._traj = Trajectory(1)
+        self._spare = Trajectory(1)   # planned into first, so a failure keeps _traj
+
+        # Cache of the filter coefficients for the last dt (dt is usually constant).
+        self._f_dt: float | None = None
+        self._f_e = 0.0
+        self._f_c = 0.0
+
+        self.target: float | None = None
+        self.target_velocity: float | None = None
+        self._reset(position)
+
+    # ------------------------------------------------------------------ config
+    def configure(self, max_velocity, max_acceleration, max_jerk, smoothing,
+                  servo_period):
+        """Set limits and IT smoothing.
+
+        New limits apply from the next re-plan (move_to/jog/stop): a move in
+        progress is not re-planned behind the caller's back. The smoothing
+        time constant applies from the next step.
+        """
+        if not (_finite(max_velocity) and max_velocity > 0):
+            raise ValueError(f'max_velocity must be finite and > 0, got {max_velocity!r}')
+        if not (_finite(max_acceleration) and max_acceleration > 0):
+            raise ValueError(
+                f'max_acceleration must be finite and > 0, got {max_acceleration!r}')
+        if not (_finite(max_jerk) and max_jerk >= 0):
+            raise ValueError(
+                f'max_jerk must be finite and >= 0 (0 = trapezoid), got {max_jerk!r}')
+        if not (_finite(smoothing) and 0.004 <= smoothing <= 1.0):
+            raise ValueError(
+                f'smoothing (Galil IT) must be in [0.004, 1], got {smoothing!r}')
+        if not (_finite(servo_period) and servo_period > 0):
+            raise ValueError(f'servo_period must be finite and > 0, got {servo_period!r}')
+
+        self.max_velocity = float(max_velocity)
+        self.max_acceleration = float(max_acceleration)
+        self.max_jerk = float(max_jerk)
+        self.smoothing = float(smoothing)
+        self.servo_period = float(servo_period)
+        # IT is a per-sample pole; as a continuous lag that is tau = -T/ln(1-IT).
+        if self.smoothing >= 1.0:
+            self._tau = 0.0
+        else:
+            self._tau = -self.servo_period / math.log1p(-self.smoothing)
+        self._f_dt = None
+
+    # ---------------------------------------------------------------- commands
+    def move_to(self, target: float, max_velocity=None, max_acceleration=None) -> None:
+        """Point-to-point move to `target`, planned from the current raw state.
+
+        max_velocity / max_acceleration override the configured limits for this move only
+        (the axis uses them to turn a jog into a stop at a soft limit: cruise no faster than
+        the jog, brake at the deceleration available). On a refusal nothing changes.
+        """
+        if not _finite(target):
+            raise ValueError(f'move target must be finite, got {target!r}')
+        self._require_configured()
+        vmax = _override('max_velocity', max_velocity, self.max_velocity)
+        amax = _override('max_acceleration', max_acceleration, self.max_acceleration)
+        target = float(target)
+        self._plan(ControlInterface.Position, target, 0.0, amax, vmax)
+        self.kind = 'position'
+        self.target = target
+        self.target_velocity = None
+
+    def follow(self, path: Path, offset: float = 0.0) -> None:
+        """Follow `path` (its `at(t) -> (p, v, a)` from t = 0 to `path.duration`, ending at rest
+        at `path.end`; `path.extrema` its (min, max) position), shifted by `offset` (the loop's
+        frame). The caller starts it from the present state (`at(0)` is the raw state now:
+        the trajectory's implicit first point), so nothing jumps."""
+        duration = float(path.duration)
+        if not (_finite(duration) and duration > 0):
+            raise ValueError(f'path duration must be finite and > 0, got {duration!r}')
+        self._path = path
+        self._offset = float(offset)
+        self.duration = duration
+        self._t = 0.0
+        self._raw_done = False
+        self._settled = False
+        self._seg_velocity = 0.0
+        self.kind = 'path'
+        self.target = float(path.end) + self._offset
+        self.target_velocity = None
+
+    def following(self, path: Path) -> bool:
+        """`path` is the segment running now (not yet ended, stopped or replaced)."""
+        return self._path is path and not self._raw_done
+
+    def jog(self, velocity: float) -> None:
+        """Velocity move; 0 decelerates to rest.
+
+        The velocity is clamped to +-max_velocity (ruckig's velocity interface
+        does not enforce max_velocity on the target itself).
+        """
+        if not _finite(velocity):
+            raise ValueError(f'jog velocity must be finite, got {velocity!r}')
+        self._require_configured()
+        vmax = self.max_velocity
+        assert vmax is not None                 # (configured)
+        velocity = min(max(float(velocity), -vmax), vmax)
+        self._plan(ControlInterface.Velocity, 0.0, velocity,
+                   self.max_acceleration)
+        self.kind = 'velocity'
+        self.target_velocity = velocity
+
+    def stop(self, deceleration: float) -> None:
+        """Decelerate to rest at `deceleration` (jerk-limited if max_jerk > 0).
+
+        Used for STOP and ESTOP, so it needs no configure(): without it the
+        stop is trapezoidal. kind is 'stop' until at rest, then 'idle'.
+        """
+        if not (_finite(deceleration) and deceleration > 0):
+            raise ValueError(f'stop deceleration must be finite and > 0, got {deceleration!r}')
+        if (self._raw_done and self._settled and self.raw_velocity == 0.0):
+            self.kind = 'idle'   # already at rest: nothing to decelerate
+            self.target_velocity = None
+            return
+        self._plan(ControlInterface.Velocity, 0.0, 0.0, float(deceleration))
+        self.kind = 'stop'
+        self.target_velocity = None
+
+    def hold(self, position: float) -> None:
+        """Reset to rest at `position` without motion (abort, enable, fault)."""
+        if not _finite(position):
+            raise ValueError(f'hold position must be finite, got {position!r}')
+        self._reset(float(position))
+
+    # -------------------------------------------------------------------- step
+    def step(self, dt: float) -> None:
+        """Advance the profile by dt seconds (dt may differ from tick to tick)."""
+        if not 0.0 <= dt < _INF:
+            raise ValueError(f'dt must be finite and >= 0, got {dt!r}')
+        if dt == 0.0:
+            return
+        x0p = self.raw_position
+        x0v = self.raw_velocity
+        x0a = self.raw_acceleration
+
+        if not self._raw_done:
+            t = self._t + dt
+            self._t = t
+            if t >= self.duration:
+                self._finish_segment(t)
+            elif self._path is not None:
+                p, v, a = self._path.at(t)
+                self.raw_position = p + self._offset
+                self.raw_velocity = v
+                self.raw_acceleration = a
+            else:
+                p, v, a = self._traj.at_time(t)
+                self.raw_position = p[0]
+                self.raw_velocity = v[0]
+                self.raw_acceleration = a[0]
+        elif x0v != 0.0:
+            # Finished velocity move: constant speed, no need to ask ruckig.
+            self.raw_position = x0p + x0v * dt
+        elif self._settled:
+            return   # at rest and fully settled: nothing to do
+
+        tau = self._tau
+        if tau == 0.0:
+            self.position = self.raw_position
+            self.velocity = self.raw_velocity
+            self.acceleration = self.raw_acceleration
+            self._settled = True
+        else:
+            if dt != self._f_dt:
+                r = dt / tau
+                self._f_e = math.exp(-r)
+                self._f_c = -math.expm1(-r) / r   # = tau/dt * (1 - e), safe for tiny r
+                self._f_dt = dt
+            e = self._f_e
+            c = self._f_c
+            # Exact solution of tau*y' = x - y for x linear over the step.
+            x1 = self.raw_position
+            self.position = x1 + (self.position - x0p) * e - (x1 - x0p) * c
+            x1 = self.raw_velocity
+            self.velocity = x1 + (self.velocity - x0v) * e - (x1 - x0v) * c
+            x1 = self.raw_acceleration
+            self.acceleration = x1 + (self.acceleration - x0a) * e - (x1 - x0a) * c
+            if self._raw_done:
+                self._try_snap()
+            else:
+                self._settled = False
+
+        if self.kind == 'stop' and self._raw_done and self._settled:
+            self.kind = 'idle'
+
+    def raw_extrema(self):
+        """(min, max) raw position over the current segment, from the state it was planned
+        in to its end (ruckig's exact extrema); a jog cruises on beyond its segment."""
+        if self._raw_done:
+            return self.raw_position, self.raw_position
+        if self._path is not None:
+            lo, hi = self._path.extrema
+            return lo + self._offset, hi + self._offset
+        ext = self._traj.position_extrema[0]
+        return ext.min, ext.max
+
+    # -------------------------------------------------------------- properties
+    @property
+    def done(self) -> bool:
+        """The unfiltered profile has finished (target / rest / constant velocity)."""
+        return self._raw_done
+
+    @property
+    def at_target(self) -> bool:
+        return self.kind in ('position', 'path') and self.raw_position == self.target
+
+    @property
+    def moving(self) -> bool:
+        """Profile generator active.
+
+        True while the raw profile runs, while the smoothed command has not
+        caught up with it, and during a constant-speed jog (the axis moves
+        although the velocity profile is 'done').
+        """
+        return (not self._raw_done or not self._settled
+                or self.raw_velocity != 0.0)
+
+    # ---------------------------------------------------------------- internal
+    def _require_configured(self):
+        if self.max_velocity is None:
+            raise RuntimeError('Profile.configure() must be called before move_to()/jog()')
+
+    def _reset(self, position: float) -> None:
+        self.raw_position = position
+        self.raw_velocity = 0.0
+        self.raw_acceleration = 0.0
+        self.position = position
+        self.velocity = 0.0
+        self.acceleration = 0.0
+        self.kind = 'idle'
+        self.target_velocity = None
+        self.duration = 0.0
+        self._t = 0.0
+        self._raw_done = True
+        self._settled = True
+        self._seg_velocity = 0.0
+        self._path = None
+        self._offset = 0.0
+
+    def _plan(self, interface, target_position, target_velocity, max_acceleration,
+              max_velocity=None):
+        """Plan a new segment from the current raw state; on error change nothing."""
+        inp = self._inp
+        inp.control_interface = interface
+        inp.current_position = [self.raw_position]
+        inp.current_velocity = [self.raw_velocity]
+        inp.current_acceleration = [self.raw_acceleration]
+        inp.target_position = [target_position]
+        inp.target_velocity = [target_velocity]
+        inp.target_acceleration = [0.0]
+        # Velocity moves ignore max_velocity; a placeholder keeps stop() usable unconfigured.
+        if max_velocity is None:
+            max_velocity = (self.max_velocity if self.max_velocity is not None
+                            else abs(self.raw_velocity) + 1.0)
+        inp.max_velocity = [max_velocity]
+        inp.max_acceleration = [max_acceleration]
+        # ruckig rejects jerk 0 ("zero limits conflict"); inf is its trapezoid.
+        inp.max_jerk = [self.max_jerk if self.max_jerk > 0.0 else _INF]
+
+        traj = self._spare
+        try:
+            result = self._ruckig.calculate(inp, traj)
+            reason = None if result in _OK_RESULTS else str(result)
+        except RuckigError as exc:
+            # ruckig's message is a multi-line dump of the input; keep its headline.
+            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+            reason = lines[0].removesuffix(' input:') if lines else 'RuckigError'
+        if reason is None and not math.isfinite(traj.duration):
+            reason = f'non-finite duration {traj.duration}'
+        if reason is not None:
+            goal = (f'velocity {target_velocity:g} m/s'
+                    if interface == ControlInterface.Velocity
+                    else f'position {target_position:g} m')
+            raise ValueError(
+                f'ruckig could not plan a move to {goal} from p={self.raw_position:g} m, '
+                f'v={self.raw_velocity:g} m/s, a={self.raw_acceleration:g} m/s^2 with '
+                f'v_max={inp.max_velocity[0]:g}, a_max={max_acceleration:g}, '
+                f'j_max={inp.max_jerk[0]:g}: {reason}; previous move kept')
+        duration = traj.duration
+
+        self._spare = self._traj
+        self._traj = traj
+        self.duration = duration
+        self._t = 0.0
+        self._raw_done = False
+        self._settled = False
+        self._seg_velocity = target_velocity
+        self._path = None
+
+    def _finish_segment(self, t):
+        duration = self.duration
+        if self.kind in ('position', 'path'):
+            # Exactly the target: ruckig's end sample carries float residue.
+            self.raw_position = self.target
+        else:
+            p = self._traj.at_time(duration)[0][0]
+            v = self._seg_velocity
+            self.raw_position = p + v * (t - duration)
+        self.raw_velocity = self._seg_velocity
+        self.raw_acceleration = 0.0
+        self._raw_done = True
+
+    def _try_snap(self):
+        rp = self.raw_position
+        tol = max(_SNAP_POSITION, 4.0 * math.ulp(rp))
+        if (abs(self.position - rp) < tol
+                and abs(self.velocity - self.raw_velocity) < _SNAP_VELOCITY
+                and abs(self.acceleration - self.raw_acceleration) < _SNAP_ACCELERATION):
+            self.position = rp
+            self.velocity = self.raw_velocity
+            self.acceleration = self.raw_acceleration
+            self._settled = True
+        else:
+            self._settled = False

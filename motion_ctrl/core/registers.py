@@ -1,0 +1,506 @@
+"""The register table: every parameter of the controller and the plant, once.
+
+Each row names the register, its ROS type, default, unit, range, the vendor register it mirrors
+and what it does. This table alone drives parameter declaration and descriptors in the nodes,
+validation (range, type, choices, cross-register rules), the YAML files in params/ and the
+README's register table (`python -m motion_ctrl.core.registers --markdown`).
+
+Controller registers are per axis (`<axis>.<name>`); the defaults fit the default plant, the
+Galil manual's backlash slide (1 in = 40,000 motor counts = 10,000 linear counts).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+INCH = 0.0254
+MOTOR_COUNTS_PER_M = 40000 / INCH     # 8,000 counts/rev on a 5.08 mm lead
+LOAD_COUNTS_PER_M = 10000 / INCH      # 2.54 um linear encoder
+
+
+@dataclass(frozen=True)
+class Register:
+    name: str
+    type: str            # 'double' | 'integer' | 'string' | 'double_array' | 'string_array'
+    default: object
+    unit: str
+    description: str
+    vendor: str = ''
+    min: float | None = None
+    max: float | None = None
+    choices: tuple = ()
+    read_only: bool = False
+    min_exclusive: bool = False   # range is (min, max] rather than [min, max]
+
+    def descriptor_text(self) -> str:
+        """Description shown by `ros2 param describe`: meaning, unit, vendor register, range."""
+        parts = [self.description]
+        if self.unit:
+            parts.append(f'Unit: {self.unit}.')
+        if self.vendor:
+            parts.append(f'Mirrors: {self.vendor}.')
+        if self.choices:
+            parts.append('One of: ' + ', '.join(self.choices) + '.')
+        if self.min is not None or self.max is not None:
+            lo = '-inf' if self.min is None else f'{self.min:g}'
+            hi = 'inf' if self.max is None else f'{self.max:g}'
+            parts.append(f'Range: {"(" if self.min_exclusive else "["}{lo}, {hi}].')
+        return ' '.join(parts)
+
+    def check(self, value) -> str | None:
+        """Why `value` is refused for this register, or None when it is acceptable."""
+        n = self.name
+        if self.type == 'double':
+            if not isinstance(value, float):      # strict, as ROS is: 2 is not 2.0
+                return f'{n}: expected a floating-point number, got {value!r}'
+            return self._check_number(float(value))
+        if self.type == 'integer':
+            if isinstance(value, bool) or not isinstance(value, int):
+                return f'{n}: expected an integer, got {value!r}'
+            return self._check_number(value)
+        if self.type == 'string':
+            if not isinstance(value, str):
+                return f'{n}: expected a string, got {value!r}'
+            if self.choices and value not in self.choices:
+                return f'{n}: unknown value {value!r}, expected one of {", ".join(self.choices)}'
+            return None
+        if self.type == 'double_array':
+            try:
+                items = [float(v) for v in value]
+            except (TypeError, ValueError):
+                return f'{n}: expected a list of numbers, got {value!r}'
+            for i, v in enumerate(items):
+                reason = self._check_number(v)
+                if reason:
+                    return reason.replace(f'{n}:', f'{n}[{i}]:', 1)
+            return None
+        if self.type == 'string_array':
+            if isinstance(value, str) or not all(isinstance(v, str) for v in value):
+                return f'{n}: expected a list of strings, got {value!r}'
+            return None
+        raise AssertionError(self.type)
+
+    def as_declared(self, value):
+        """`value` as this register's type when it is a spelling that ROS tooling delivers with
+        another type, else `value` unchanged (and then refused by type as usual). One rule for
+        every register, by its declared type:
+
+        * an empty array of any element type for an array register: YAML `[]` has no element
+          type (rclpy types it as a bool array);
+        * for a double, text spelled as a float; for a double array, items or a flow-list text
+          spelled as floats: rclpy's YAML file loader (`ros2 param load`) reads `1.0e-06` back
+          as the string '1e-06', so a dumped value returns as text.
+
+        Integer spellings stay refused for doubles (`2` is not `2.0`), as ROS types are strict.
+        """
+        if self.type in ('double_array', 'string_array') and _is_array(value) and not value:
+            return []
+        if self.type == 'double' and isinstance(value, str):
+            number = _float_text(value)
+            return value if number is None else number
+        if self.type == 'double_array' and (isinstance(value, str) or _is_array(value)):
+            items = value
+            if isinstance(value, str):
+                text = value.strip()
+                if not (text.startswith('[') and text.endswith(']')):
+                    return value
+                items = text[1:-1].split(',') if text[1:-1].strip() else []
+            if not all(isinstance(v, str) for v in items):
+                return value
+            numbers = [_float_text(v) for v in items]
+            return value if None in numbers else numbers
+        return value
+
+    def _check_number(self, v) -> str | None:
+        n = self.name
+        if not math.isfinite(v):
+            return f'{n}: {v} is not a finite number'
+        if self.min is not None and (v < self.min or (self.min_exclusive and v == self.min)):
+            op = '>' if self.min_exclusive else '>='
+            return f'{n}: {v:g} {self.unit} is out of range, must be {op} {self.min:g}'
+        if self.max is not None and v > self.max:
+            return f'{n}: {v:g} {self.unit} is out of range, must be <= {self.max:g}'
+        return None
+
+
+def _is_array(value) -> bool:
+    return not isinstance(value, (str, bytes)) and hasattr(value, '__len__')
+
+
+def _float_text(text: str) -> float | None:
+    """The float that `text` spells with a '.' or an exponent ('1e-06', '2.5'), else None."""
+    text = text.strip()
+    if not any(c in text for c in '.eE'):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _r(*args, **kw) -> Register:
+    return Register(*args, **kw)
+
+
+# Both nodes: the scheduling of the servo process (ros_env.realtime applies it).
+REALTIME_PRIORITY = _r(
+    'realtime_priority', 'integer', 0, '',
+    'SCHED_FIFO priority of every thread of the node (the servo loop and its DDS threads); 0: '
+    'normal scheduling. At normal priority CPU load, and ROS tools joining the graph (a Fast DDS '
+    'shared-memory health check, eProsima/Fast-DDS#6535), now and then hold the servo streams '
+    'for 333 ms, past feedback_timeout; 30 removed that in the measurements (README, Notes). '
+    'Needs CAP_SYS_NICE or an rtprio limit (ulimit -r); without it the node warns and runs at '
+    'normal priority.',
+    'LinuxCNC servo-thread, PMAC real-time interrupt', min=0, max=98, read_only=True)
+
+# Controller-wide parameters (not per axis).
+CONTROLLER_GLOBALS = (
+    _r('axes', 'string_array', ['x'], '', 'Names of the axes this controller runs.',
+       read_only=True),
+    _r('servo_rate', 'double', 1000.0, 'Hz', 'Servo loop rate.', 'PMAC servo clock, Galil TM',
+       min=10.0, max=20000.0, read_only=True),
+    _r('feedback_timeout', 'double', 0.02, 's',
+       'Encoder data older than this opens the loop (FEEDBACK_FAULT).', min=0.0,
+       min_exclusive=True, max=10.0),
+    REALTIME_PRIORITY,
+)
+
+MODES = ('position_pid', 'position_ipd', 'velocity_pid', 'velocity_ipd')
+FEEDBACKS = ('motor', 'load', 'dual', 'sampled')
+
+# Per-axis servo registers. Gains are SI: the output is volts to a torque-mode amplifier.
+AXIS_REGISTERS = (
+    _r('mode', 'string', 'position_pid', '', 'Control mode. Velocity modes act on velocity error '
+       '(kp V·s/m, ki V/m, kd V·s²/m).', 'RMC control modes', choices=MODES),
+    _r('feedback', 'string', 'dual', '', 'Position feedback: motor encoder, load encoder, dual '
+       '(KP/KI on load, KD on motor) or sampled (motor loop + correction moves on the load '
+       'encoder at the end of each move).', 'Galil DV, PMAC Ixx03/Ixx04', choices=FEEDBACKS),
+    _r('motor_counts_per_m', 'double', MOTOR_COUNTS_PER_M, 'counts/m',
+       'Motor (rotary) encoder counts per metre of slide travel.', 'PMAC Ixx08 scaling',
+       min=0.0, min_exclusive=True),
+    _r('load_counts_per_m', 'double', LOAD_COUNTS_PER_M, 'counts/m',
+       'Load (linear) encoder counts per metre.', 'Galil auxiliary encoder', min=0.0,
+       min_exclusive=True),
+    _r('kp', 'double', 16000.0, 'V/m', 'Proportional gain.', 'PMAC Ixx30, Galil KP', min=0.0),
+    _r('ki', 'double', 181019.3, 'V/(m·s)', 'Integral gain.', 'PMAC Ixx33, Galil KI', min=0.0),
+    _r('kd', 'double', 160.0, 'V·s/m', 'Derivative gain, on the actual velocity of the '
+       'velocity-loop encoder (PMAC form; set kvff = kd for derivative of error).',
+       'PMAC Ixx31, Galil KD', min=0.0),
+    _r('kvff', 'double', 161.06, 'V·s/m', 'Velocity feedforward.', 'PMAC Ixx32', min=0.0),
+    _r('kaff', 'double', 0.5966, 'V·s²/m', 'Acceleration feedforward.', 'PMAC Ixx35', min=0.0),
+    _r('friction_ff', 'double', 0.0, 'V', 'Friction feedforward, added by the sign of the '
+       'commanded velocity (0 at rest).', 'PMAC Ixx68', min=0.0, max=10.0),
+    _r('bias', 'double', 0.0, 'V', 'Constant output offset (closed loop only).',
+       'PMAC Ixx29 / Galil OF', min=-10.0, max=10.0),
+    _r('integration_mode', 'string', 'always', '', 'always: integrate all the time; at_rest: '
+       'integrator input off while the commanded velocity is non-zero (output held).',
+       'PMAC Ixx34 = 0 / 1', choices=('always', 'at_rest')),
+    _r('integration_limit', 'double', 5.0, 'V', 'Limit of the integrator output.',
+       'PMAC Ixx63, Galil IL', min=0.0, max=10.0),
+    _r('output_limit', 'double', 10.0, 'V', 'Limit of the command output.',
+       'PMAC Ixx69, Galil TL', min=0.0, max=10.0),
+    _r('output_deadband', 'double', 0.0, 'V', 'Added by the sign of the output to overcome an '
+       'amplifier or valve deadband (closed loop only).', 'RMC Output Deadband', min=0.0,
+       max=10.0),
+    _r('deadband_tolerance', 'double', 0.0, 'm', 'Position error window for anti-hunting and '
+       'deadband ratioing.', 'RMC Deadband Tolerance', min=0.0),
+    _r('notch_n1', 'double', 0.0, '', 'Notch/low-pass numerator z^-1 coefficient.',
+       'PMAC Ixx36', min=-2.0, max=2.0),
+    _r('notch_n2', 'double', 0.0, '', 'Notch/low-pass numerator z^-2 coefficient.',
+       'PMAC Ixx37', min=-2.0, max=2.0),
+    _r('notch_d1', 'double', 0.0, '', 'Notch/low-pass denominator z^-1 coefficient.',
+       'PMAC Ixx38', min=-2.0, max=2.0),
+    _r('notch_d2', 'double', 0.0, '', 'Notch/low-pass denominator z^-2 coefficient.',
+       'PMAC Ixx39', min=-2.0, max=2.0),
+    _r('position_error_limit', 'double', 0.0, 'm', 'Clips the position error fed to the loop '
+       '(0 = off).', 'PMAC Ixx67', min=0.0),
+    _r('following_error_warning', 'double', 0.001, 'm', 'Following error warning threshold '
+       '(0 = off).', 'PMAC Ixx12, Galil ER', min=0.0),
+    _r('following_error_fatal', 'double', 0.005, 'm', 'Following error that opens the loop '
+       '(0 = off); needs <axis>/reset.', 'PMAC Ixx11, Galil OE', min=0.0),
+    _r('backlash_distance', 'double', 0.0, 'm', 'Backlash added to the motor command while '
+       'moving negative.', 'PMAC Ixx86', min=-0.01, max=0.01),
+    _r('backlash_takeup_rate', 'double', 0.01, 'm/s', 'Rate at which backlash is introduced or '
+       'removed on a reversal (per second; 0 = at once).', 'PMAC Ixx85', min=0.0),
+    _r('backlash_hysteresis', 'double', 2.54e-6, 'm', 'Commanded motion in the new direction '
+       'needed to detect a reversal.', 'PMAC Ixx87', min=0.0),
+    _r('backlash_table', 'double_array', [], 'm', 'Position-dependent backlash added to '
+       'backlash_distance while moving negative; entry i at i·spacing.', 'PMAC DEFINE BLCOMP',
+       min=-0.01, max=0.01),
+    _r('backlash_table_spacing', 'double', 0.0, 'm', 'Spacing of backlash_table entries.',
+       'PMAC DEFINE BLCOMP', min=0.0),
+    _r('leadscrew_table', 'double_array', [], 'm', 'Correction added to the motor command in '
+       'both directions (fill with minus the measured slide error); entry i at i·spacing.',
+       'PMAC DEFINE COMP', min=-0.01, max=0.01),
+    _r('leadscrew_table_spacing', 'double', 0.0, 'm', 'Spacing of leadscrew_table entries.',
+       'PMAC DEFINE COMP', min=0.0),
+    _r('max_velocity', 'double', 0.1, 'm/s', 'Move velocity limit.', 'Galil SP, PMAC Ixx16',
+       min=0.0, min_exclusive=True),
+    _r('max_acceleration', 'double', 1.5, 'm/s²', 'Move acceleration limit.',
+       'Galil AC/DC, PMAC Ixx17', min=0.0, min_exclusive=True),
+    _r('max_jerk', 'double', 0.0, 'm/s³', 'Move jerk limit (0 = trapezoid).', 'PMAC Ixx19..21 '
+       'S-curve', min=0.0),
+    _r('smoothing', 'double', 1.0, '', 'Profile smoothing, first-order filter with pole 1 − IT '
+       'per servo sample (1 = off).', 'Galil IT', min=0.004, max=1.0),
+    _r('stop_deceleration', 'double', 2.0, 'm/s²', 'Deceleration of <axis>/stop.',
+       'RMP STOP rate', min=0.0, min_exclusive=True),
+    _r('estop_deceleration', 'double', 10.0, 'm/s²', 'Deceleration of <axis>/estop.',
+       'RMP ESTOP rate', min=0.0, min_exclusive=True),
+    _r('soft_limit_min', 'double', -0.5, 'm', 'Targets below are refused (LIMIT bit).',
+       'Galil BL, PMAC Ixx14'),
+    _r('soft_limit_max', 'double', 0.5, 'm', 'Targets above are refused (LIMIT bit).',
+       'Galil FL, PMAC Ixx13'),
+    _r('fine_position_tolerance', 'double', 1.5e-6, 'm', 'Settled window on the position '
+       'error (default: the exact count on the linear encoder, or either neighbour of a target '
+       'that falls between two counts).', 'RMP PositionToleranceFine', min=0.0),
+    _r('coarse_position_tolerance', 'double', 2.54e-5, 'm', 'Near-target window.',
+       'RMP PositionToleranceCoarse', min=0.0),
+    _r('velocity_tolerance', 'double', 0.005, 'm/s', 'Settled / at-velocity window on the '
+       'velocity.', 'RMP VelocityTolerance', min=0.0),
+    _r('settling_time', 'double', 0.02, 's', 'Time the settling criteria must hold (time of new '
+       'encoder samples: a held-up feedback stream adds none).',
+       'RMP SettlingTime', min=0.0, max=60.0),
+    _r('correction_tolerance', 'double', 1 / LOAD_COUNTS_PER_M, 'm', 'Sampled dual loop: '
+       'corrections stop when the load encoder error is below this (1 count: only an exact '
+       'reading ends them).', 'Galil example: |V2| < 2 linear counts',
+       min=0.0, min_exclusive=True),
+    _r('correction_max_moves', 'integer', 200, 'count', 'Sampled dual loop: most correction '
+       'moves per move (a reversal inside the gap can take one per count of backlash, twice '
+       'over when the slide overshoots: 28 in the headline, 50 and more over DDS).', '',
+       min=0, max=1000),
+)
+
+CONTROLLER_AXIS = {r.name: r for r in AXIS_REGISTERS}
+CONTROLLER_GLOBAL = {r.name: r for r in CONTROLLER_GLOBALS}
+
+
+def axis_defaults(table=AXIS_REGISTERS) -> dict:
+    return {r.name: (list(r.default) if isinstance(r.default, list) else r.default)
+            for r in table}
+
+
+def consistency(v: dict) -> list[str]:
+    """Cross-register rules on a complete set of one axis' values; reasons name the registers."""
+    reasons = []
+    if v['coarse_position_tolerance'] < v['fine_position_tolerance']:
+        reasons.append('coarse_position_tolerance must be >= fine_position_tolerance '
+                       f'({v["coarse_position_tolerance"]:g} < {v["fine_position_tolerance"]:g})')
+    if not v['soft_limit_min'] < v['soft_limit_max']:
+        reasons.append('soft_limit_min must be < soft_limit_max '
+                       f'({v["soft_limit_min"]:g} >= {v["soft_limit_max"]:g})')
+    for table in ('backlash_table', 'leadscrew_table'):
+        if len(v[table]) and not v[f'{table}_spacing'] > 0:
+            reasons.append(f'{table}_spacing must be > 0 while {table} is set (set the '
+                           'spacing before the table; clear the table with [] before or with '
+                           'the spacing)')
+    w, f = v['following_error_warning'], v['following_error_fatal']
+    if w > 0 and f > 0 and w > f:
+        reasons.append(f'following_error_warning must be <= following_error_fatal ({w:g} > {f:g})')
+    # local: the notch module owns what a valid filter is
+    from motion_ctrl.core.notch import Biquad
+    try:
+        Biquad().configure(v['notch_n1'], v['notch_n2'], v['notch_d1'], v['notch_d2'])
+    except ValueError as e:
+        reasons.append(f'notch_n1..notch_d2: {e}')
+    return reasons
+
+
+# Plant parameters (per axis `<axis>.<name>` on the plant node): the Galil backlash slide.
+PLANT_PARAMETERS = (
+    _r('lead', 'double', 0.2 * INCH, 'm/rev', 'Lead of the screw (5.08 mm: 5 rev per inch).',
+       min=0.0, min_exclusive=True),
+    _r('motor_counts_per_rev', 'double', 8000.0, 'counts/rev', 'Rotary encoder resolution.',
+       min=1.0),
+    _r('load_resolution', 'double', INCH / 10000, 'm/count', 'Linear encoder resolution.',
+       min=0.0, min_exclusive=True),
+    _r('motor_inertia', 'double', 2.0e-5, 'kg·m²', 'Rotor plus screw inertia.', min=0.0,
+       min_exclusive=True),
+    _r('slide_mass', 'double', 5.0, 'kg', 'Moving mass of the slide.', min=0.0,
+       min_exclusive=True),
+    _r('backlash', 'double', 20 * INCH / 10000, 'm', 'Gap between nut and slide flanks '
+       '(20 linear counts).', min=0.0),
+    _r('screw_stiffness', 'double', 1.0e7, 'N/m', 'Axial stiffness of screw, nut and coupling '
+       'in contact: with the two masses it sets the mechanical resonance (~240 Hz).',
+       min=0.0, min_exclusive=True),
+    _r('screw_damping', 'double', 200.0, 'N·s/m', 'Damping of that compliance.', min=0.0),
+    _r('torque_constant', 'double', 0.1, 'N·m/A', 'Motor torque constant.', min=0.0,
+       min_exclusive=True),
+    _r('amplifier_gain', 'double', 0.5, 'A/V', 'Torque-mode amplifier transconductance.',
+       min=0.0, min_exclusive=True),
+    _r('amplifier_limit', 'double', 10.0, 'V', 'Amplifier input saturation.', min=0.0,
+       min_exclusive=True),
+    _r('motor_viscous', 'double', 1.0e-5, 'N·m·s/rad', 'Motor viscous friction.', min=0.0),
+    _r('motor_coulomb', 'double', 0.004, 'N·m', 'Motor Coulomb (sliding) friction.', min=0.0),
+    _r('motor_stiction', 'double', 0.0045, 'N·m', 'Motor breakaway friction (>= coulomb).',
+       min=0.0),
+    _r('slide_viscous', 'double', 50.0, 'N·s/m', 'Slide viscous friction.', min=0.0),
+    _r('slide_coulomb', 'double', 10.0, 'N', 'Slide Coulomb friction.', min=0.0),
+    _r('slide_stiction', 'double', 10.5, 'N', 'Slide breakaway friction (>= coulomb).', min=0.0),
+    _r('pitch_error_slope', 'double', 2.0e-4, 'm/m', 'Cumulative lead error of the screw '
+       '(nut position gains this much per metre of motor travel).', min=-0.01, max=0.01),
+    _r('pitch_error_amplitude', 'double', 2.54e-6, 'm', 'Periodic lead error amplitude.',
+       min=0.0, max=0.001),
+    _r('pitch_error_period', 'double', 1.5 * INCH, 'm', 'Period of the periodic lead error.',
+       min=0.0, min_exclusive=True),
+    _r('travel_min', 'double', -0.55, 'm', 'Slide end stop (negative).'),
+    _r('travel_max', 'double', 0.55, 'm', 'Slide end stop (positive).'),
+    _r('brake', 'integer', 0, '', '1 clamps the slide (stall test), 0 releases it.',
+       min=0, max=1),
+    _r('command_timeout', 'double', 0.01, 's', 'Amplifier command watchdog: with no '
+       '`command` for this long (plant time, checked every plant cycle) the output goes to 0 V '
+       'and the dynamic brake closes until commands come again; <axis>/amplifier_fault reports '
+       'it. 10 servo periods: a slide at max_velocity (0.1 m/s) runs 1 mm on the last command '
+       'and 1 mm on the dynamic brake, at rest in 31 ms (coasting free against friction alone '
+       'it would run 9.3 mm more, in 0.2 s); shorter trips on every controller stall of a '
+       'loaded machine.',
+       'fieldbus (EtherCAT SM) watchdog, PMAC amplifier fault', min=0.0, max=10.0,
+       min_exclusive=True),
+    _r('dynamic_brake', 'double', 0.002, 'N·m·s/rad', 'Braking torque per motor speed while '
+       'the watchdog holds the output at 0: the amplifier shorts the windings through its brake '
+       'resistor (Kt²/R, here R = 5 Ω); 0 lets the motor coast.',
+       'servo drive dynamic braking (DB stop)', min=0.0, max=0.1),
+)
+PLANT_GLOBALS = (
+    _r('axes', 'string_array', ['x'], '', 'Names of the simulated axes.', read_only=True),
+    _r('publish_rate', 'double', 1000.0, 'Hz', 'Rate of encoders / plant_states.', min=10.0,
+       max=20000.0, read_only=True),
+    _r('substep_rate', 'double', 20000.0, 'Hz', 'Integration rate of the physics.', min=1000.0,
+       max=1.0e6, read_only=True),
+    _r('lockstep', 'integer', 0, '', '1: advance one period per controller command and publish '
+       '/clock (deterministic sim time).', min=0, max=1, read_only=True),
+    REALTIME_PRIORITY,
+)
+PLANT_AXIS = {r.name: r for r in PLANT_PARAMETERS}
+
+
+def plant_consistency(v: dict) -> list[str]:
+    reasons = []
+    if v['motor_stiction'] < v['motor_coulomb']:
+        reasons.append('motor_stiction must be >= motor_coulomb')
+    if v['slide_stiction'] < v['slide_coulomb']:
+        reasons.append('slide_stiction must be >= slide_coulomb')
+    if not v['travel_min'] < 0.0 < v['travel_max']:
+        reasons.append('travel_min < 0 < travel_max is required (the slide starts at 0)')
+    return reasons
+
+
+# -- generated artefacts: params/*.yaml and the README table ---------------------------------------
+def yaml_float(value) -> str:
+    """A double that every YAML reader types as one: YAML 1.1 wants a '.' (1e-06 -> 1.0e-06)."""
+    text = repr(float(value))
+    if 'e' in text and '.' not in text.split('e')[0]:
+        text = text.replace('e', '.0e', 1)
+    return text
+
+
+def _yaml_value(reg, value) -> str:
+    if reg.type == 'double':
+        return yaml_float(value)
+    if reg.type == 'integer':
+        return str(int(value))
+    if reg.type == 'string':
+        return value
+    if reg.type == 'double_array':
+        return '[' + ', '.join(yaml_float(v) for v in value) + ']'
+    # Quoted: rcl's YAML reads y, n, on, off (and yes, no, true, false) as booleans, and an
+    # unquoted `axes: [x, y]` is refused as a list of mixed types.
+    return '[' + ', '.join(f"'{v}'" for v in value) + ']'
+
+
+def params_yaml(node: str, globals_, axis_table, axes=('x',)) -> str:
+    """`ros2 param load` YAML of a node's registers at their defaults (the default slide).
+
+    Empty arrays are written as comments: rcl's YAML parser cannot type an empty sequence.
+    """
+    lines = [f'# Generated by `python -m motion_ctrl.core.registers --yaml {node}` from the',
+             '# register table in motion_ctrl/core/registers.py: edit the table, not this file.',
+             f'{node}:', '  ros__parameters:']
+
+    def emit(reg, key):
+        value = reg.default
+        text = f'{key}: {_yaml_value(reg, value)}'
+        unit = f' [{reg.unit}]' if reg.unit else ''
+        vendor = f' {reg.vendor}' if reg.vendor else ''
+        comment = f'  #{unit}{vendor}'.rstrip(' #') if (unit or vendor) else ''
+        if isinstance(value, list) and not value and reg.type == 'double_array':
+            lines.append(f'    # {text}{comment}')
+        else:
+            lines.append(f'    {text}{comment}')
+
+    for reg in globals_:
+        value = list(axes) if reg.name == 'axes' else reg.default
+        lines.append(f'    {reg.name}: {_yaml_value(reg, value)}')
+    for axis in axes:
+        for reg in axis_table:
+            emit(reg, f'{axis}.{reg.name}')
+    return '\n'.join(lines) + '\n'
+
+
+def markdown_table(table) -> str:
+    rows = ['| register | unit | default | range | vendor | meaning |',
+            '|---|---|---|---|---|---|']
+    for r in table:
+        if r.choices:
+            rng = ' \\| '.join(r.choices)
+        elif r.min is not None or r.max is not None:
+            lo = '−∞' if r.min is None else f'{r.min:g}'
+            hi = '∞' if r.max is None else f'{r.max:g}'
+            rng = f'{"(" if r.min_exclusive else "["}{lo}, {hi}]'
+        else:
+            rng = ''
+        default = r.default if not isinstance(r.default, float) else f'{r.default:.6g}'
+        rows.append(f'| `{r.name}` | {r.unit} | {default} | {rng} | {r.vendor} | '
+                    f'{r.description} |')
+    return '\n'.join(rows) + '\n'
+
+
+GENERATED = {
+    'params/controller.yaml': lambda: params_yaml('controller', CONTROLLER_GLOBALS,
+                                                  AXIS_REGISTERS),
+    'params/plant.yaml': lambda: params_yaml('plant', PLANT_GLOBALS, PLANT_PARAMETERS),
+}
+
+
+README_BLOCKS = {
+    'registers:controller': lambda: markdown_table(AXIS_REGISTERS),
+    'registers:plant': lambda: markdown_table(PLANT_PARAMETERS),
+}
+
+
+def readme_block(text: str, key: str) -> str:
+    """The generated text between `<!-- key -->` and `<!-- /key -->` in README text."""
+    start = text.index(f'<!-- {key} -->\n') + len(f'<!-- {key} -->\n')
+    return text[start:text.index(f'<!-- /{key} -->')]
+
+
+def update_readme(text: str) -> str:
+    for key, make in README_BLOCKS.items():
+        text = text.replace(f'<!-- {key} -->\n{readme_block(text, key)}',
+                            f'<!-- {key} -->\n{make()}')
+    return text
+
+
+def main(argv=None) -> int:
+    import argparse
+    import pathlib
+    ap = argparse.ArgumentParser(description='Print or write what the register table generates.')
+    ap.add_argument('--yaml', choices=('controller', 'plant'), help='print a params YAML')
+    ap.add_argument('--markdown', choices=('controller', 'plant'), help='print a README table')
+    ap.add_argument('--write', metavar='REPO',
+                    help='rewrite params/*.yaml and the README tables under REPO')
+    a = ap.parse_args(argv)
+    if a.yaml:
+        print(GENERATED[f'params/{a.yaml}.yaml'](), end='')
+    if a.markdown:
+        print(markdown_table(AXIS_REGISTERS if a.markdown == 'controller'
+                             else PLANT_PARAMETERS), end='')
+    if a.write:
+        for path, make in GENERATED.items():
+            (pathlib.Path(a.write) / path).write_text(make())
+        readme = pathlib.Path(a.write) / 'README.md'
+        readme.write_text(update_readme(readme.read_text()))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,296 @@
+"""The servo loop of a controller: one whole tick for all its axes, as a PMAC servo interrupt or
+LinuxCNC's motion controller cycle runs it, in named stages:
+
+ 1. register sets accepted since the last tick, applied together (a set of several parameters
+    takes effect on one tick; PMAC applies I-variables at the next servo cycle);
+ 2. scheduled targets: those a stop, abort, disable or fault made void are dropped (said why),
+    those due are started;
+ 3. per axis, feedback freshness: a tick with no new encoder sample counts its time (a late tick
+    at most two periods) and beyond `feedback_timeout` the axis faults (FEEDBACK_FAULT); at
+    start-up the loop closes only once the encoder stream has run STREAM_SETTLE (real time;
+    PMAC Ixx80 = 1 power-on enable) or at the first sample (sim time);
+ 4. coordinated trajectories (PMAC PVT): one whose axis was stopped, aborted, disabled or
+    faulted stops the other axes of it too (a coordinate system stops as one);
+ 5. per axis, the sample's age (it is compared with the command of its own time) and the
+    axis's own tick (`Axis.update`).
+
+No ROS here: the controller node feeds it samples, targets and register sets and publishes
+what `tick` returns; the lines it returns are for the node's log.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.diagnostics import LoopStats
+from motion_ctrl.core.trajectory import AxisLimits, Trajectory
+from msg_defs.status import Status
+
+# s of encoder samples before the loop closes at start-up (real time): while DDS discovery
+# settles, a stream can pause for longer than feedback_timeout right after its first sample.
+STREAM_SETTLE = 0.5
+_FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
+_FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
+
+
+def _ns(seconds: float) -> float:
+    """A difference of two stamps [s], back on the nanosecond grid ROS stamps live on: k·T − (k−1)·T
+    in floats is T only to ~1e-18, and the profile must step by exactly the period."""
+    return round(seconds * 1e9) / 1e9
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A trajectory checked and built from the axes' state `start` ({axis: (p, v, a)}), and
+    each axis's share of it (`paths`, Trajectory.paths: a few ms for a few hundred points, so
+    made here, off the servo thread where the node can)."""
+    spec: dict
+    trajectory: Trajectory
+    start: dict
+    paths: dict
+
+
+@dataclass
+class Tick:
+    """What one tick produced: the axes that have feedback, their outputs [V], and log lines
+    as (level, text), level 'error' or 'warning'."""
+    names: list[str] = field(default_factory=list)
+    outputs: list[float] = field(default_factory=list)
+    log: list[tuple[str, str]] = field(default_factory=list)
+
+
+class ServoLoop:
+    def __init__(self, axes: dict[str, Axis], values: dict[str, dict], period: float,
+                 feedback_timeout: float, sim_time: bool = False):
+        self.axes = axes
+        self.values = values                  # registers applied, per axis
+        self.staged: dict[str, dict] = {}     # accepted, applied at the next tick
+        self.period = period
+        self.feedback_timeout = feedback_timeout
+        self.sim_time = sim_time
+        self.stats = LoopStats(period)
+        self.last_tick: float | None = None
+        # Per axis: the latest sample (motor, load, stamp [s]), the stamp of the last one used,
+        # the stamp of the first, and the servo time waited for a new one.
+        self.enc: dict[str, tuple[int, int, float] | None] = {a: None for a in axes}
+        self.enc_used: dict[str, float | None] = {a: None for a in axes}
+        self.first_sample: dict[str, float] = {}
+        self.waited = {a: 0.0 for a in axes}
+        self.scheduled: list[tuple[float, str, float, int]] = []   # (stamp, axis, target, epoch)
+        # Trajectories: those waiting for their stamp (stamp, spec, {axis: epoch}), and those
+        # running ({axis: (its path, the command epoch it started in)}).
+        self.scheduled_paths: list[tuple[float, Prepared, dict[str, int]]] = []
+        self.running_paths: list[dict] = []
+        self._faults = {a: 0 for a in axes}
+        self._diverged: dict[str, tuple | None] = {}      # the last logged, per axis
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
+        """An encoder sample of `axis`, stamped by the plant [s]."""
+        self.enc[axis] = (motor, load, stamp)
+
+    def current(self, axis: str) -> dict:
+        """The axis's registers as they will be at the next tick."""
+        return self.values[axis] | self.staged.get(axis, {})
+
+    def stage(self, axis: str, changes: dict) -> None:
+        self.staged.setdefault(axis, {}).update(changes)
+
+    def apply_staged(self) -> list[tuple[str, str]]:
+        log = []
+        for axis, changes in self.staged.items():
+            merged = self.values[axis] | changes
+            try:
+                self.axes[axis].configure(merged)
+                self.values[axis] = merged
+            except ValueError as e:      # validated already; a core refusal is still logged
+                log.append(('error', f'parameters not applied: {e}'))
+        self.staged.clear()
+        return log
+
+    def schedule(self, stamp: float, axis: str, target: float) -> None:
+        """A target to start at the first tick at or after `stamp` [s] (a coordinated start)."""
+        self.scheduled.append((stamp, axis, target, self.axes[axis].command_epoch))
+
+    def unschedule(self, axes, why: str) -> list[tuple[str, str]]:
+        """Drop the scheduled targets of `axes`; the log lines saying so."""
+        log = [('warning', f'{a}: scheduled target {t:g} m (stamped {stamp:.3f} s) cancelled '
+                           f'by {why}') for stamp, a, t, _ in self.scheduled if a in axes]
+        self.scheduled = [x for x in self.scheduled if x[1] not in axes]
+        return log
+
+    def move(self, targets: dict) -> list[tuple[str, str]]:
+        """Start moves now, after any register set accepted before them (commands take effect in
+        the order they came: a feedback change applied at the next tick would re-home the
+        command and drop a move started meanwhile). Returns (axis, refusal) of those refused."""
+        return self._start(Axis.move_to, targets)
+
+    def jog(self, velocities: dict) -> list[tuple[str, str]]:
+        """Start jogs now, after any register set accepted before them (as `move`)."""
+        return self._start(Axis.jog, velocities)
+
+    def _start(self, command, values: dict) -> list[tuple[str, str]]:
+        if self.staged:
+            self.apply_staged()
+        refused = []
+        for a, value in values.items():
+            ok, reason = command(self.axes[a], value)
+            if not ok:
+                refused.append((a, reason))
+        return refused
+
+    # -- coordinated trajectories (PMAC PVT) ---------------------------------------------------
+    def prepare(self, spec: dict):
+        """Check and build the trajectory of `spec` (msg_defs.read_joint_trajectory's dict)
+        from the axes' commanded state now: a Prepared, or the refusal. It only reads the
+        axes, so the node can run it off the servo thread (a 400-point quintic takes ~8 ms);
+        `trajectory` builds it again if the axes have moved meanwhile."""
+        limits = {a: AxisLimits.from_registers(self.values[a]) for a in self.axes}
+        start = {a: self.axes[a].path_state for a in spec['names'] if a in self.axes}
+        try:
+            built = Trajectory.build(spec['names'], spec['times'], spec['positions'],
+                                     spec['velocities'], spec['accelerations'],
+                                     start=start, limits=limits)
+        except ValueError as e:
+            return str(e)
+        return Prepared(spec, built, start, built.paths())
+
+    def trajectory(self, job, stamp: float | None = None, now: float | None = None):
+        """Start (or, with a `stamp` after `now`, schedule) a multi-axis trajectory: `job` a
+        spec or a Prepared of it. Checked as a whole from the axes' commanded state at the
+        start (motion_ctrl.core.trajectory); returns the refusal, or None. A refused trajectory
+        changes nothing."""
+        if self.staged:
+            self.apply_staged()
+        if isinstance(job, dict) or any(self.axes[a].path_state != s
+                                        for a, s in job.start.items()):
+            job = self.prepare(job if isinstance(job, dict) else job.spec)
+            if isinstance(job, str):
+                return job
+        names = job.spec['names']
+        for a in names:
+            reason = self.axes[a].start_refusal('trajectory')
+            if reason:
+                return reason
+        if stamp is not None and now is not None and stamp > now + 1e-9:
+            self.scheduled_paths.append(
+                (stamp, job, {a: self.axes[a].command_epoch for a in names}))
+            return None
+        paths = job.paths
+        for a in names:
+            ok, reason = self.axes[a].follow(paths[a])
+            if not ok:                       # (checked above; a refusal here still counts)
+                self._stop_paths(set(names), f'{a} refused its path')
+                return reason
+        self.running_paths = [g for g in self.running_paths if not set(g) & set(names)]
+        self.running_paths.append({a: (paths[a], self.axes[a].command_epoch) for a in names})
+        return None
+
+    def _stop_paths(self, names: set, why: str) -> list[tuple[str, str]]:
+        log = []
+        for a in sorted(names):
+            ok, _ = self.axes[a].stop('stop')
+            if ok:
+                log.append(('warning', f'{a}: trajectory stopped: {why}'))
+        return log
+
+    def _coordinate(self, now: float, out: Tick) -> None:
+        """Start the trajectories that are due; stop the axes of a running one whose other
+        axis left it by a stop, abort, disable or fault."""
+        due = [x for x in self.scheduled_paths if x[0] <= now + 1e-9]
+        if due:
+            self.scheduled_paths = [x for x in self.scheduled_paths if x[0] > now + 1e-9]
+            for stamp, job, epochs in due:
+                void = [a for a, e in epochs.items() if self.axes[a].command_epoch != e]
+                if void:
+                    out.log.append(('warning', f'scheduled trajectory (stamped {stamp:.3f} s) '
+                                               f'cancelled by {self.axes[void[0]].cancelled_by}'
+                                               f' on {void[0]}'))
+                    continue
+                reason = self.trajectory(job)
+                if reason:
+                    out.log.append(('warning', f'joint_trajectory refused: {reason}'))
+        running = []
+        for group in self.running_paths:
+            on = {a for a, (path, _) in group.items() if self.axes[a].profile.following(path)}
+            left = [a for a, (_, epoch) in group.items() if self.axes[a].command_epoch != epoch]
+            if left and on:
+                why = f'{left[0]} left it ({self.axes[left[0]].cancelled_by})'
+                out.log += self._stop_paths(on, why)
+            elif on:
+                running.append(group)
+        self.running_paths = running
+
+    # -- the tick -------------------------------------------------------------------------------
+    def tick(self, now: float) -> Tick | None:
+        """One servo tick at time `now` [s]; None when time did not advance (sim time paused)."""
+        dt = self.period if self.last_tick is None else _ns(now - self.last_tick)
+        self.last_tick = now
+        if dt <= 0.0:
+            return None
+        out = Tick()
+        self.stats.period(dt)
+        if self.staged:
+            out.log += self.apply_staged()
+        if self.scheduled:
+            self._scheduled(now, out)
+        if self.scheduled_paths or self.running_paths:
+            self._coordinate(now, out)
+        age_recorded = False         # (one encoder message carries every axis)
+        for a, axis in self.axes.items():
+            enc = self.enc[a]
+            if enc is None:
+                continue                 # no feedback yet: the loop stays open, nothing sent
+            motor, load, s_stamp = enc
+            if s_stamp != self.enc_used[a]:
+                self.waited[a] = 0.0
+            else:
+                self.waited[a] = _ns(self.waited[a] + min(dt, 2 * self.period))
+                if self.waited[a] > self.stats.feedback_wait_max:
+                    self.stats.feedback_wait_max = self.waited[a]
+            stale = self.waited[a] > self.feedback_timeout
+            if not axis.homed:
+                first = self.first_sample.setdefault(a, s_stamp)
+                if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
+                    continue             # the encoder stream is not established yet: wait
+            if stale:
+                if not axis.fault_bits & _FEEDBACK_FAULT:
+                    opened = 'loop opened' if axis.enabled else 'the loop was open'
+                    out.log.append(('error', (
+                        f'{a}: FEEDBACK_FAULT: no new encoder sample for '
+                        f'{self.waited[a] * 1e3:.0f} ms of servo time (the last is stamped '
+                        f'{(now - s_stamp) * 1e3:.0f} ms ago); {opened}, call {a}/reset')))
+                axis.feedback_fault()
+                volts = axis.update(dt, motor, load, sample_dt=0.0)
+            else:
+                prev = self.enc_used[a]
+                sample_dt = None if prev is None else _ns(s_stamp - prev)
+                self.enc_used[a] = s_stamp
+                age = min(max(now - s_stamp, 0.0), 3 * self.period)
+                if not age_recorded:
+                    age_recorded = True
+                    self.stats.feedback_age(age)
+                volts = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
+            faults = axis.fault_bits
+            if faults & _FE_FATAL and not self._faults[a] & _FE_FATAL:
+                out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call '
+                                         f'{a}/reset'))
+            self._faults[a] = faults
+            diverged = axis.sampled.diverged
+            if diverged is not None and self._diverged.get(a) is not diverged:
+                out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
+                                           f'from {diverged[0]} to {diverged[1]} counts'))
+            self._diverged[a] = diverged
+            out.names.append(a)
+            out.outputs.append(volts)
+        return out
+
+    def _scheduled(self, now: float, out: Tick) -> None:
+        void = {a for _, a, _, epoch in self.scheduled if epoch != self.axes[a].command_epoch}
+        for a in void:
+            out.log += self.unschedule({a}, self.axes[a].cancelled_by)
+        due = [x for x in self.scheduled if x[0] <= now + 1e-9]
+        if due:
+            self.scheduled = [x for x in self.scheduled if x[0] > now + 1e-9]
+            for a, reason in self.move({a: t for _, a, t, _ in due}):
+                out.log.append(('warning', f'target_position refused: {reason}'))

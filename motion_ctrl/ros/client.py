@@ -1,0 +1,166 @@
+"""A small rclpy client of the controller and plant: command moves, watch status and truth.
+
+Used by the demo, the DDS tests and the benchmark. It talks only through the public contract
+(msg_defs topics), as any ROS user would.
+"""
+from __future__ import annotations
+
+import time
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt32
+from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
+
+import msg_defs as md
+from motion_ctrl.ros import ros_env
+from msg_defs.status import Status
+
+
+FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
+
+
+class SlideClient(Node):
+    def __init__(self, axes=('x',), name='slide_client', context=None, services=False,
+                 truth=True):
+        super().__init__(name, context=context)
+        # (The client shares two cores with two 1 kHz nodes: the lighter executor leaves them
+        # more room.)
+        self.executor_ = ros_env.executor(self.context)
+        self.executor_.add_node(self)
+        self.axes = list(axes)
+        self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
+        self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
+        self.pub_trajectory = self.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
+        self.truth = None          # latest plant_states {joint: position}
+        self.status = {a: None for a in self.axes}
+        self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
+        # truth=False: a tool that must work against real hardware (calibrate) neither reads
+        # the simulation's ground truth nor waits for it.
+        self.wants_truth = truth
+        if truth:
+            self.create_subscription(JointState, md.PLANT_STATES, self._on_truth,
+                                     md.SERVO_READ_QOS)
+        for a in self.axes:
+            self.create_subscription(UInt32, md.status_topic(a),
+                                     lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
+        # The axis services' clients, made now when asked for: a client (a new reader) joining
+        # later holds the controller up while Fast DDS health-checks its port (README, Notes).
+        self.axis_services = {
+            (a, name): self.create_client(SetBool if kind == 'SetBool' else Trigger,
+                                          md.service_name(a, name))
+            for a in (self.axes if services else ()) for name, kind in md.SERVICES.items()}
+
+    def _on_truth(self, msg):
+        self.truth = dict(zip(msg.name, msg.position))
+
+    def _on_status(self, axis, msg):
+        if msg.data != self.status[axis]:
+            self.status_log[axis].append((time.monotonic(), msg.data))
+        self.status[axis] = msg.data
+
+    def spin_until(self, predicate, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            self.executor_.spin_once(timeout_sec=0.01)
+        return bool(predicate())
+
+    def answer(self, send, timeout: float = 10.0, resend_after: float = 1.0):
+        """The response to a service request; `send()` sends it and returns the future.
+
+        A request not answered within `resend_after` seconds is sent again (use it for requests
+        that may be repeated: parameter services, enable, stop, reset, ...): until discovery has
+        matched the server's response writer with our response reader, which can lag behind
+        the request side by more than a second on a loaded machine, Fast DDS drops a response it
+        cannot deliver within 100 ms (ros2/rmw_fastrtps#418). Raises TimeoutError.
+        """
+        futures = [send()]
+        start = time.monotonic()
+        while not any(f.done() for f in futures):
+            elapsed = time.monotonic() - start
+            if elapsed >= timeout:
+                raise TimeoutError(f'no answer in {timeout:g} s to {len(futures)} request(s)')
+            if elapsed >= len(futures) * resend_after:
+                futures.append(send())
+            self.executor_.spin_once(timeout_sec=0.01)
+        return next(f for f in futures if f.done()).result()
+
+    def call(self, service: str, data: bool | None = None, timeout: float = 5.0, axis=None):
+        """Call `<axis>/<service>` (the first axis by default; SetBool with `data`, else
+        Trigger) and return the response (services=True in the constructor)."""
+        client = self.axis_services[(axis or self.axes[0], service)]
+        if not self.spin_until(client.service_is_ready, timeout):
+            raise TimeoutError(f'{service} not available')
+        request = SetBool.Request(data=data) if data is not None else Trigger.Request()
+        return self.answer(lambda: client.call_async(request), timeout)
+
+    def wait_ready(self, timeout: float = 15.0) -> bool:
+        """Discovery done and the loop running: subscribers matched, status and truth seen."""
+        return self.spin_until(lambda: not self.not_ready(), timeout)
+
+    def not_ready(self) -> str:
+        """What wait_ready still waits for ('' when ready)."""
+        if self.pub_target.get_subscription_count() == 0:
+            return 'no controller subscribed to target_position yet'
+        if self.wants_truth and self.truth is None:
+            return 'no plant_states received yet'
+        words = {a: s for a, s in self.status.items() if s is None or not s & Status.ENABLED}
+        if words:
+            return 'axes not enabled: ' + ', '.join(
+                f'{a} ' + ('no status' if s is None else repr(Status(s))) for a, s in words.items())
+        return ''
+
+    def move_done(self, axis: str, mark: int) -> bool:
+        """MOTION_DONE cleared and then raised again in the status words of `axis` since `mark`
+        (an index into status_log). The RMP way to wait for a move: accepting a move clears
+        MOTION_DONE. (Not MOVING: a move that ends within one servo period, a fraction of a
+        count or a tick the loaded machine skipped, never shows it.)"""
+        cleared = False
+        for _, word in self.status_log[axis][mark:]:
+            if not word & Status.MOTION_DONE:
+                cleared = True
+            elif cleared:
+                return True
+        return False
+
+    def move(self, targets: dict, timeout: float = 5.0):
+        """Publish a target set; wait until every axis has cleared and raised MOTION_DONE.
+
+        Returns seconds from publish to the last MOTION_DONE, or None on timeout or when an axis
+        faulted instead (a fault opens the loop, which also raises MOTION_DONE): `status` then
+        shows the fault bits.
+        """
+        msg = md.joint_state(self.get_clock().now().to_msg(), list(targets),
+                             list(targets.values()))
+        return self._send_and_wait(self.pub_target, msg, list(targets), timeout)
+
+    def follow(self, names, times, positions, velocities=None, accelerations=None,
+               timeout: float = 5.0):
+        """Send a joint_trajectory (starting now) and wait as `move` does, `timeout` after its
+        last point; returns as `move`."""
+        self.spin_until(lambda: self.pub_trajectory.get_subscription_count() > 0, 5.0)
+        from builtin_interfaces.msg import Time
+        msg = md.joint_trajectory(Time(), names, times, positions, velocities, accelerations)
+        return self._send_and_wait(self.pub_trajectory, msg, list(names),
+                                   max(times) + timeout)
+
+    def _send_and_wait(self, publisher, msg, axes: list, timeout: float):
+        marks = {a: len(self.status_log[a]) for a in axes}
+        t0 = time.monotonic()
+        publisher.publish(msg)
+
+        def faulted():
+            return any(w & FAULTS for a in axes for _, w in self.status_log[a][marks[a]:])
+        if not self.spin_until(
+                lambda: faulted() or all(self.move_done(a, marks[a]) for a in axes),
+                timeout) or faulted():
+            return None
+        last = max(next(t for t, w in reversed(self.status_log[a]) if w & Status.MOTION_DONE)
+                   for a in axes)
+        return last - t0
+
+    def load_position(self, axis='x') -> float:
+        return self.truth[md.load_joint(axis)]

@@ -1,0 +1,428 @@
+"""The `controller` node: a timer-driven servo loop for one or more axes.
+
+A thin shell: parameters, topics, services and the timer are translated into calls on
+`motion_ctrl.core.servo_loop.ServoLoop` (the tick: register sets, scheduled targets, feedback
+watchdog, each `Axis`) and its axes. Parameter sets are validated in the on-set callback (a refusal
+names the parameter and changes nothing) and staged in the post-set callback; the next servo tick
+applies everything staged at once, so several parameters set in one call take effect together.
+Parameter services and the timer share the node's default callback group: they never run
+concurrently, no lock is needed. In real time the timer's phase is moved, once, to just after the
+encoder samples arrive (`motion_ctrl.core.feedback_sync`), so a sample does not wait up to a
+period.
+
+With `use_sim_time` the servo tick is driven by the encoder samples instead of a timer (like a
+drive synchronised to its fieldbus cycle): each new sample, stamped in sim time, is one tick, and
+the command carries the sample's stamp. With the plant in lockstep this makes a scenario
+deterministic. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
+clock is applied at the first tick at or after that stamp (a coordinated start of several axes,
+or a move at an exact sim time); other targets apply at once. A `joint_trajectory`
+(trajectory_msgs/JointTrajectory) is checked as a whole and run on all its axes on one time base
+(`ServoLoop.trajectory`, PMAC PVT); its header stamp schedules it the same way.
+"""
+from __future__ import annotations
+
+import math
+import queue
+import signal
+import threading
+import sys
+import time
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt32
+from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
+from diagnostic_msgs.msg import DiagnosticArray
+
+import msg_defs as md
+from motion_ctrl.ros import ros_env, ros_params
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.diagnostics import diagnostics_message
+from motion_ctrl.core.feedback_sync import FeedbackSync
+from motion_ctrl.core.servo_loop import ServoLoop
+from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
+                                   CONTROLLER_GLOBAL, consistency)
+
+STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
+# Targets are read raw and a message larger than this is refused by its size before it is
+# decoded (rclpy would build a Python string per name first: a flood of 10,000-name messages
+# at 100 Hz took the loop from 995 to ~500 Hz). 64 KiB holds hundreds of axes.
+MAX_TARGET_BYTES = 65536
+MAX_TARGET_NAMES = 256
+# A trajectory is checked in the callback, between two ticks: ~16 µs per point with
+# accelerations (quintic: its velocity and acceleration extrema are roots of quartics and
+# cubics), ~4 µs without (2 axes, this machine). Longer would hold the servo loop past the
+# amplifier's 10 ms command watchdog; a longer path is sent in parts, each a new trajectory
+# from where the last one is.
+MAX_TRAJECTORY_POINTS = {'with accelerations': 400, 'without': 1500}
+MAX_TRAJECTORY_BYTES = 1 << 20
+REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second, with a count
+MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
+# s: the longest a stopping controller waits for its last command (0 V) to be acknowledged
+SHUTDOWN_ACK_WAIT = 0.2
+
+
+class ControllerNode(ros_params.RegisterNode):
+    NODE_NAME = 'controller'
+
+    def __init__(self, **kwargs):
+        super().__init__(self.NODE_NAME, **kwargs)
+        self.globals_table, self.axis_table = CONTROLLER_GLOBAL, CONTROLLER_AXIS
+        self.consistency = consistency
+        g = {r.name: ros_params.declare(self, r, r.name) for r in CONTROLLER_GLOBALS}
+        self.axis_names = list(g['axes'])
+        self.servo_rate = g['servo_rate']
+        self.feedback_timeout = g['feedback_timeout']
+        self.period = 1.0 / self.servo_rate
+        self.axes: dict[str, Axis] = {}
+        self.values: dict[str, dict] = {}
+        for name in self.axis_names:
+            self.values[name] = {r.name: ros_params.declare(self, r, f'{name}.{r.name}')
+                                 for r in AXIS_REGISTERS}
+        self.refuse_unknown_overrides()
+        for name, values in self.values.items():
+            self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see run()
+        self.sim_time = self.get_parameter('use_sim_time').value
+        self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
+                              self.sim_time)
+        self.add_on_set_parameters_callback(self.validate)
+        self.add_post_set_parameters_callback(self._stage)
+        self.joints = [(a, md.motor_joint(a), md.load_joint(a)) for a in self.axis_names]
+
+        self.pub_command = self.stream(JointState, md.COMMAND)
+        self.pub_joint = self.stream(JointState, md.JOINT_STATES)
+        self.pub_reference = self.stream(JointState, md.REFERENCE_STATES)
+        self.pub_motor = self.stream(JointState, md.MOTOR_STATES)
+        self.pub_status = {a: self.stream(UInt32, md.status_topic(a), md.STATUS_QOS)
+                           for a in self.axis_names}
+        self.pub_diag = self.stream(DiagnosticArray, md.DIAGNOSTICS, 10)
+        self.create_subscription(JointState, md.ENCODERS, self._on_encoders, md.SERVO_READ_QOS)
+        self.create_subscription(JointState, md.TARGET_POSITION, self._raw_target(
+            self._on_target_position, 'target_position'), 10, raw=True)
+        self.create_subscription(JointState, md.TARGET_VELOCITY, self._raw_target(
+            self._on_target_velocity, 'target_velocity'), 10, raw=True)
+        # Trajectories are decoded, checked and built on a thread of their own in real time
+        # (rclpy's decoding of 400 points alone takes ~5 ms), and started by the next tick.
+        self.trajectories: queue.SimpleQueue = queue.SimpleQueue()     # raw messages in
+        self.prepared: queue.SimpleQueue = queue.SimpleQueue()         # built, to start
+        self.create_subscription(JointTrajectory, md.JOINT_TRAJECTORY, self._on_raw_trajectory,
+                                 10, raw=True)
+        if not self.sim_time:
+            threading.Thread(target=self._prepare_loop, name='trajectories', daemon=True).start()
+        for a in self.axis_names:
+            self._make_services(a)
+
+        self.last_status: dict[str, int | None] = {a: None for a in self.axis_names}
+        self.last_status_time = {a: -math.inf for a in self.axis_names}
+        self.stats = self.loop.stats
+        self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
+        # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
+        self.timer = None if self.sim_time else self.create_timer(self.period,
+                                                                  lambda: self._tick())
+        # Real time: the servo ticks are moved to just after the encoder samples arrive.
+        self.sync = None if self.sim_time else FeedbackSync(self.period)
+        self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}')
+
+    # -- parameters -----------------------------------------------------------------------------
+    def current(self, axis: str) -> dict:
+        return self.loop.current(axis)
+
+    def live_refusal(self, axis: str, changes: dict):
+        return self.axes[axis].live_change_refusal(changes)
+
+    def _stage(self, params) -> None:
+        for p in params:
+            if p.name == 'feedback_timeout':
+                self.loop.feedback_timeout = p.value
+        for axis, changes in self.axis_changes(params).items():
+            self.loop.stage(axis, changes)
+
+    def _log(self, lines) -> None:
+        logger = self.get_logger()
+        for level, text in lines:         # (rclpy: one severity per call site)
+            if level == 'error':
+                logger.error(text)
+            else:
+                logger.warning(text)
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def _on_encoders(self, msg: JointState) -> None:
+        try:
+            counts = md.read_joint_state(msg, 'position')
+        except md.MalformedMessage as e:
+            self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
+            return
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        for a, motor, load in self.joints:
+            m, l = counts.get(motor), counts.get(load)
+            if m is not None and l is not None:
+                self.loop.feedback(a, int(m), int(l), stamp)
+        if self.sync is not None:
+            self.sync.arrived(time.perf_counter())     # ready for a tick from now on
+        last = self.loop.last_tick
+        if self.sim_time and (last is None or stamp > last):
+            self._tick(msg.header.stamp)
+        elif self.sim_time and stamp == last and self.pub_command.names:
+            # The lockstep plant sent this sample again: our answer did not reach it.
+            self.pub_command.send(self.pub_command.msg)
+
+    def _refused(self, kind: str, text: str) -> None:
+        """A refusal logged at most once per REFUSAL_LOG_PERIOD per kind, with how many like it
+        were not logged (a stream of bad input must not flood the log or slow the loop)."""
+        now = time.monotonic()
+        entry = self.refusals.setdefault(kind, [-math.inf, 0])
+        if now - entry[0] < REFUSAL_LOG_PERIOD:
+            entry[1] += 1
+            return
+        more = f' ({entry[1]} more refused in the last {now - entry[0]:.1f} s)' \
+            if entry[1] and entry[0] > -math.inf else ''
+        entry[0], entry[1] = now, 0
+        self.get_logger().warning(text + more)
+
+    def _raw_target(self, callback, what: str):
+        def on_raw(data: bytes) -> None:
+            if len(data) > MAX_TARGET_BYTES:
+                self._refused(what + ':size', f'{what} refused: a {len(data)}-byte message '
+                              f'(at most {MAX_TARGET_BYTES})')
+                return
+            try:
+                msg = deserialize_message(data, JointState)
+            except Exception as e:           # (rclpy raises its own types for a bad CDR)
+                self._refused(what, f'{what} refused: not a JointState ({e})')
+                return
+            callback(msg)
+        return on_raw
+
+    def _targets(self, msg, field, what):
+        if len(msg.name) > MAX_TARGET_NAMES:
+            self._refused(what + ':size', f'{what} refused: {len(msg.name)} names (at most '
+                          f'{MAX_TARGET_NAMES})')
+            return {}
+        try:
+            return md.read_joint_state(msg, field, known=self.axes)
+        except md.MalformedMessage as e:
+            self._refused(what, f'{what} refused: {e}')
+            return {}
+
+    def _on_target_position(self, msg: JointState) -> None:
+        targets = self._targets(msg, 'position', 'target_position')
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        ahead = stamp - self.get_clock().now().nanoseconds * 1e-9
+        if targets and 0.0 < ahead <= MAX_SCHEDULE:
+            for a, t in targets.items():
+                self.loop.schedule(stamp, a, t)
+            return
+        self._log(self.loop.unschedule(targets, 'a newer immediate target'))
+        for a, reason in self.loop.move(targets):
+            self._refused(f'target:{a}', f'target_position refused: {reason}')
+
+    def _on_target_velocity(self, msg: JointState) -> None:
+        jogs = self._targets(msg, 'velocity', 'target_velocity')
+        self._log(self.loop.unschedule(jogs, 'a jog'))
+        for a, reason in self.loop.jog(jogs):
+            self._refused(f'jog:{a}', f'target_velocity refused: {reason}')
+
+    def _on_raw_trajectory(self, data: bytes) -> None:
+        if len(data) > MAX_TRAJECTORY_BYTES:
+            self._refused('trajectory:size', f'joint_trajectory refused: a {len(data)}-byte '
+                          f'message (at most {MAX_TRAJECTORY_BYTES})')
+            return
+        if self.sim_time:                   # deterministic: prepared and started at once
+            job = self._prepare(data)
+            if job is not None:
+                self._start_trajectory(*job)
+            return
+        self.trajectories.put(data)
+
+    def _prepare_loop(self) -> None:
+        while True:
+            job = self._prepare(self.trajectories.get())
+            if job is not None:
+                self.prepared.put(job)
+
+    def _prepare(self, data: bytes):
+        """(prepared or refusal, stamp [s]) of a raw JointTrajectory, or None when it was
+        refused already (logged)."""
+        try:
+            msg = deserialize_message(data, JointTrajectory)
+        except Exception as e:               # (rclpy raises its own types for a bad CDR)
+            self._refused('trajectory', f'joint_trajectory refused: not a JointTrajectory ({e})')
+            return None
+        kind = 'with accelerations' if any(p.accelerations for p in msg.points) else 'without'
+        most = MAX_TRAJECTORY_POINTS[kind]
+        if len(msg.points) > most or len(msg.joint_names) > MAX_TARGET_NAMES:
+            self._refused('trajectory:size', f'joint_trajectory refused: {len(msg.points)} '
+                          f'points for {len(msg.joint_names)} axes (at most {most} points '
+                          f'{kind}: send a longer path in parts)')
+            return None
+        spec = md.read_joint_trajectory(msg)
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        return self.loop.prepare(spec), stamp
+
+    def _start_trajectory(self, job, stamp: float) -> None:
+        """On the servo thread: start (or schedule) a prepared trajectory."""
+        if isinstance(job, str):
+            self._refused('trajectory', f'joint_trajectory refused: {job}')
+            return
+        now = self.get_clock().now().nanoseconds * 1e-9
+        known = [a for a in job.spec['names'] if a in self.axes]
+        self._log(self.loop.unschedule(known, 'a trajectory'))
+        reason = self.loop.trajectory(job, stamp if 0.0 < stamp - now <= MAX_SCHEDULE else None,
+                                      now)
+        if reason:
+            self._refused('trajectory', f'joint_trajectory refused: {reason}')
+
+    def _make_services(self, a: str) -> None:
+        axis = self.axes[a]
+
+        def trigger(fn):
+            def cb(request, response):
+                response.success, response.message = fn()
+                return response
+            return cb
+
+        def enable(request, response):
+            response.success, response.message = axis.enable(request.data)
+            return response
+        self.create_service(SetBool, md.service_name(a, 'enable'), enable)
+        self.create_service(Trigger, md.service_name(a, 'stop'), trigger(lambda: axis.stop('stop')))
+        self.create_service(Trigger, md.service_name(a, 'estop'),
+                            trigger(lambda: axis.stop('estop')))
+        self.create_service(Trigger, md.service_name(a, 'abort'), trigger(axis.abort))
+        self.create_service(Trigger, md.service_name(a, 'reset'), trigger(axis.reset))
+        self.create_service(Trigger, md.service_name(a, 'correct'), trigger(axis.correct))
+
+    # -- the servo tick -------------------------------------------------------------------------
+    def _tick(self, stamp_msg=None) -> None:
+        """One servo tick: at the timer (real time) or at an encoder sample (sim time)."""
+        t_start = time.perf_counter()
+        if stamp_msg is None:
+            stamp = self.get_clock().now().to_msg()
+            period = self.sync.tick(t_start)
+            if period is not None:
+                self.timer.timer_period_ns = round(period * 1e9)
+        else:
+            stamp = stamp_msg
+        now = stamp.sec + stamp.nanosec * 1e-9
+        while not self.prepared.empty():
+            self._start_trajectory(*self.prepared.get_nowait())
+        tick = self.loop.tick(now)
+        if tick is None:
+            return                       # sim time paused or stepped back
+        self._log(tick.log)
+        names, outputs = tick.names, tick.outputs
+        if names:
+            self.pub_command.publish(stamp, names, effort=outputs)
+            ax = [self.axes[a] for a in names]
+            self.pub_joint.publish(stamp, names, [x.load_pos for x in ax],
+                                   [x.load_vel for x in ax], outputs)
+            self.pub_reference.publish(stamp, names, [x.command_position for x in ax],
+                                       [x.profile.velocity for x in ax])
+            self.pub_motor.publish(stamp, names, [x.motor_pos for x in ax],
+                                   [x.motor_vel for x in ax])
+        for a, axis in self.axes.items():
+            s = int(axis.status)
+            if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
+                self.pub_status[a].send(UInt32(data=s))
+                self.last_status[a] = s
+                self.last_status_time[a] = now
+        self.stats.work(time.perf_counter() - t_start)
+
+    def shutdown_outputs(self) -> None:
+        """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V
+        commanded on every axis, as a PMAC or Galil kills its motors (amplifier disabled, output
+        0) when it stops, instead of leaving the amplifier on its last command until the
+        amplifier's own watchdog trips. The command stream is reliable: waiting (bounded) for the
+        readers' acknowledgement keeps the participant alive until the message has left; a
+        best-effort reader (the plant) got it in the synchronous publish already."""
+        stamp = self.get_clock().now().to_msg()
+        for axis in self.axes.values():
+            axis.enable(False)
+        self.pub_command.publish(stamp, self.axis_names, effort=[0.0] * len(self.axis_names))
+        for a, axis in self.axes.items():
+            self.pub_status[a].send(UInt32(data=int(axis.status)))
+        self.pub_command.publisher.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_WAIT))
+        self.get_logger().info(f'stopped: loops opened, 0 V commanded on {self.axis_names}')
+
+    def _publish_diagnostics(self) -> None:
+        extra = {} if self.sync is None else {'timer_phase_shifts': self.sync.shifts}
+        self.pub_diag.send(diagnostics_message(
+            self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes, extra))
+        self.stats.reset_window()
+
+
+def spin(node) -> None:
+    """Spin on ros_env.executor() until SIGINT or SIGTERM.
+
+    The signals only raise a flag: the context is shut down after the last callback returned,
+    so no callback publishes on a dead context. Before that a node's `shutdown_outputs()`, if
+    it has one, leaves its outputs safe (the controller: loops open, 0 V).
+    """
+    executor = ros_env.executor()
+    executor.add_node(node)
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.append(True))
+    try:
+        while not stop and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        safe = getattr(node, 'shutdown_outputs', None)
+        if safe is not None and rclpy.ok():
+            try:
+                safe()
+            except Exception as e:          # (still shut down; say why the outputs may not be)
+                print(f'{node.get_name()}: shutdown_outputs failed: {e!r}', file=sys.stderr)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run(node_class, args=None) -> int:
+    """Start a node; a bad parameter (from a YAML or the command line) exits 2 with one line."""
+    from rclpy.exceptions import (InvalidParameterTypeException,
+                                  InvalidParameterValueException, ParameterException)
+    from rclpy.signals import SignalHandlerOptions
+    ros_env.local_discovery()
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override
+        print(f'{node_class.__name__}: bad arguments: {str(e).splitlines()[0]}'
+              f'{ros_params.yaml_bool_hint(str(e))}', file=sys.stderr)
+        return 2
+    argv = list(args or sys.argv)
+    refusal = ros_params.params_files_refusal(node_class.NODE_NAME, argv)
+    if refusal:
+        print(f'{node_class.__name__}: {refusal}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        node = node_class()
+    except (InvalidParameterValueException, InvalidParameterTypeException,
+            ParameterException, ValueError) as e:
+        # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
+        # <name>"; the reason names the parameter too.
+        msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
+        where = ros_params.where_from(msg, argv)
+        print(f'{node_class.__name__}: bad parameter{f" (from {where})" if where else ""}: '
+              f'{msg}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    problem = ros_env.realtime(node.get_parameter('realtime_priority').value)
+    if problem:
+        node.get_logger().warning(problem)
+    spin(node)
+    return 0
+
+
+def main(args=None):
+    sys.exit(run(ControllerNode, args))
+
+
+if __name__ == '__main__':
+    main()

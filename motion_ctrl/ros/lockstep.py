@@ -1,0 +1,130 @@
+"""Run a move in the deterministic lockstep simulation and collect the plant's ground truth.
+
+Plant (`lockstep: 1`, the clock) and controller (`use_sim_time: true`, ticking on encoder
+samples) as two processes. The target is stamped with the sim time at which it must start and
+published well before that time, so the move begins on the same tick in every run, and the
+whole run is bit-identical. Used by the lockstep test and the benchmark.
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import time
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+
+import msg_defs as md
+from motion_ctrl.ros import ros_env
+from motion_ctrl.ros.processes import NodeProcess, params_dir
+
+
+def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
+                 timeout: float = 60.0, log_dir=None):
+    """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second).
+
+    The move starts at sim time `start`. The observer may find the plant late (a missed
+    discovery announcement is repeated after 3 s, ~10 s of sim time): keep `start` well after
+    that; the samples before it show the slide at rest.
+    """
+    import rclpy
+    d = params_dir()
+    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
+    domain = ros_env.spare_domain()
+    # Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of
+    # stopped processes in /dev/shm, and a new participant on the same domain and port was
+    # seen reading an earlier run's last samples from them (a stale /clock ended a run at
+    # once). Lost UDP datagrams cost nothing here: the plant resends a sample without answer.
+    udp = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | udp
+    context = rclpy.Context()
+    saved = {k: os.environ.get(k) for k in udp}
+    os.environ.update(udp)               # read when the participant is created
+    try:
+        rclpy.init(context=context, domain_id=domain)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    # The observer is the third process on two cores: it must not slow the loop it watches.
+    # It takes plant_states raw (no Python message per sample) and decodes them after the
+    # run; progress is read from the newest sample a few times a second.
+    node = Node('lockstep_observer', context=context)
+    executor = ros_env.executor(context)
+    executor.add_node(node)
+    pub_target = node.create_publisher(JointState, md.TARGET_POSITION, 10)
+    raw = []                      # (wall time of arrival, serialised plant_states)
+    node.create_subscription(JointState, md.PLANT_STATES,
+                             lambda b: raw.append((time.monotonic(), b)),
+                             QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE),
+                             raw=True)   # deep: a slow reader must not lose samples
+
+    def sim_time() -> float:
+        if not raw:
+            return -1.0
+        st = deserialize_message(raw[-1][1], JointState).header.stamp
+        return st.sec + st.nanosec * 1e-9
+
+    def spin_until(predicate, seconds) -> bool:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            next_check = min(deadline, time.monotonic() + 0.05)
+            while time.monotonic() < next_check:
+                executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    plant = None
+    # The controller first, and its target: with no encoder sample it does not tick, and its
+    # sim clock stands at 0, so a target stamped `start` is scheduled for that sim time. Then
+    # the plant: the sim runs as soon as plant and controller have found each other (the
+    # plant resends t = 0 until then); this observer usually sees it from the first samples.
+    controller = NodeProcess('controller_node', d / 'controller.yaml', {'use_sim_time': 'true'},
+                             log('controller'), env=_with_path(env))
+    try:
+        if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
+            raise RuntimeError('controller not discovered')
+        spin_until(lambda: False, 0.5)     # the controller's side of the match, too
+        stamp = JointState().header.stamp
+        stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
+        pub_target.publish(md.joint_state(stamp, ['x'], [target]))
+        spin_until(lambda: False, 0.2)
+        plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
+                            env=_with_path(env))
+        if not spin_until(lambda: raw, 30.0):
+            raise RuntimeError('lockstep plant not discovered')
+        if not spin_until(lambda: sim_time() >= end, timeout):
+            raise RuntimeError(
+                f'lockstep did not reach {end} s of sim time: stopped at {sim_time()} s; '
+                f'plant exit {plant.proc.poll()}, controller exit {controller.proc.poll()}')
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        for n in (controller, plant):
+            if n is not None:
+                n.stop()
+        context.try_shutdown()
+    truth, moving = {}, []
+    for wall, b in raw:
+        msg = deserialize_message(b, JointState)
+        t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        truth[t_ns] = tuple(msg.position) + tuple(msg.velocity)
+        if t_ns > 0:
+            moving.append((wall, t_ns * 1e-9))
+    speed = ((moving[-1][1] - moving[0][1]) / (moving[-1][0] - moving[0][0])
+             if len(moving) > 1 else float('nan'))
+    return truth, speed
+
+
+def _with_path(env: dict) -> dict:
+    root = str(pathlib.Path(__file__).resolve().parent.parent)
+    return env | {'PYTHONPATH': os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)}
+
+
+def bench_lockstep() -> float:
+    return run_lockstep()[1]

@@ -1,0 +1,86 @@
+"""Start the nodes as separate processes and stop them cleanly (demo, tests, benchmark).
+
+Nodes run as `python -m motion_ctrl.<node>` with the interpreter running this code, so the same
+source tree or install is used; SIGINT stops them (they shut down after the current callback).
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+
+REPO_PARAMS = pathlib.Path(__file__).resolve().parent.parent / 'params'
+
+
+def params_dir() -> pathlib.Path:
+    """params/ of the source tree, else the installed share/motion_ctrl/params."""
+    if REPO_PARAMS.is_dir():
+        return REPO_PARAMS
+    from ament_index_python.packages import get_package_share_directory
+    return pathlib.Path(get_package_share_directory('motion_ctrl')) / 'params'
+
+
+def _default_sigint():
+    # A process started in the background of a non-interactive shell inherits SIGINT ignored.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    # Fix: when the starting process dies without stop() (a killed or timed-out test run, a
+    # crashed demo) its nodes ran on as orphans, loading the machine and publishing on the
+    # domain forever. Linux: the kernel sends the node SIGTERM (a clean stop) when its parent
+    # dies. (The signal follows the thread that started the node: start nodes from a thread
+    # that outlives them, as the demo and tests do.)
+    if sys.platform.startswith('linux'):
+        try:
+            import ctypes
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+
+class NodeProcess:
+    """A node run as `python -m motion_ctrl.ros.<module> --ros-args ...`."""
+
+    def __init__(self, module: str, params_file=None, params: dict | None = None,
+                 log_path=None, env=None):
+        args = [sys.executable, '-m', f'motion_ctrl.ros.{module}', '--ros-args']
+        if params_file:
+            args += ['--params-file', str(params_file)]
+        for k, v in (params or {}).items():
+            args += ['-p', f'{k}:={v}']
+        self.args = args
+        self.log = open(log_path, 'w') if log_path else subprocess.DEVNULL
+        if env is None:
+            # The nodes run the same code as this process (a source tree or an install).
+            env = os.environ.copy()
+            root = str(pathlib.Path(__file__).resolve().parent.parent)
+            env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
+        self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
+                                     env=env, preexec_fn=_default_sigint)
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGINT, wait; SIGKILL only if it does not stop. Returns the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if not isinstance(self.log, int):        # (subprocess.DEVNULL)
+            self.log.close()
+        return self.proc.returncode
+
+
+def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
+                log_dir=None, params_files: bool = True):
+    """Plant and controller with the default params files (which set the registers of axis x;
+    params_files=False: the register table's defaults, the same values, for any axis names)
+    plus overrides; returns both."""
+    d = params_dir()
+    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
+    file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
+    plant = NodeProcess('plant_node', file('plant'), plant_params, log('plant'))
+    controller = NodeProcess('controller_node', file('controller'), controller_params,
+                             log('controller'))
+    return plant, controller

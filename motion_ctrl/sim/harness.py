@@ -1,0 +1,105 @@
+"""In-process harness: controller axis cores coupled to plant cores, stepped in lockstep.
+
+Each servo tick the controller's tick (`ServoLoop`, the same object the controller node drives,
+in its sim-time form: each encoder sample is one tick) reads the plant's encoders and computes
+the command, and the plant integrates one servo period with that command held (zero-order hold,
+like a DAC). An optional
+transport delay of whole ticks models the encoder → command path over DDS. No ROS, no clocks:
+a scenario is deterministic and runs many times faster than real time. Several axes
+(`axes=('x', 'y')`: a slide each, the same registers) run on the one ServoLoop, as the node's do;
+`axis`, `plant` and the trace are the first one's.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+from msg_defs.status import Status
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.sim.plant import SlidePlant
+from motion_ctrl.core.registers import CONTROLLER_GLOBAL
+from motion_ctrl.core.servo_loop import ServoLoop
+
+
+@dataclass
+class Trace:
+    """Per-tick record of a run (lists of floats / ints)."""
+    t: list = field(default_factory=list)
+    command: list = field(default_factory=list)      # commanded position [m] (user frame)
+    actual: list = field(default_factory=list)       # the axis' actual position [m]
+    motor: list = field(default_factory=list)        # true motor position [m]
+    load: list = field(default_factory=list)         # true slide position [m]
+    output: list = field(default_factory=list)       # command [V]
+    status: list = field(default_factory=list)       # status word
+    following_error: list = field(default_factory=list)  # [m]
+
+
+class Harness:
+    def __init__(self, registers: dict | None = None, plant: dict | None = None,
+                 servo_period: float = 1e-3, latency_ticks: int = 0, record: bool = True,
+                 axes=('x',)):
+        self.T = servo_period
+        self.axes = {a: Axis(a, registers, servo_period, record_events=True) for a in axes}
+        self.loop = ServoLoop(self.axes, {a: x.r for a, x in self.axes.items()}, servo_period,
+                              float(CONTROLLER_GLOBAL['feedback_timeout'].default),  # type: ignore[arg-type]
+                              sim_time=True)
+        self.plants = {a: SlidePlant(**(plant or {})) for a in axes}
+        self.axis, self.plant = self.axes[axes[0]], self.plants[axes[0]]
+        self.delay = {a: deque([0.0] * latency_ticks) for a in axes}
+        self.trace = Trace() if record else None
+        self.ticks = 0
+        for a, x in self.axes.items():
+            x.home(*self.plants[a].encoder_counts())
+
+    @property
+    def time(self) -> float:
+        return self.ticks * self.T
+
+    def tick(self, disturbance=None) -> None:
+        now = self.ticks * self.T
+        for a, plant in self.plants.items():
+            motor, load = plant.encoder_counts()
+            self.loop.feedback(a, motor, load, now)
+        tick = self.loop.tick(now)
+        outputs = dict(zip(tick.names, tick.outputs)) if tick is not None else {}
+        for a, plant in self.plants.items():
+            self.delay[a].append(outputs.get(a, 0.0))
+            plant.step(self.delay[a].popleft(), self.T)
+        out = outputs.get(self.axis.name, 0.0)
+        self.ticks += 1
+        if disturbance:
+            disturbance(self)
+        tr = self.trace
+        if tr is not None:
+            a = self.axis
+            tr.t.append(self.time)
+            tr.command.append(a.command_position)
+            tr.actual.append(a.actual_pos)
+            tr.motor.append(self.plant.x_m)
+            tr.load.append(self.plant.x_l)
+            tr.output.append(out)
+            tr.status.append(int(a.status))
+            tr.following_error.append(a.following_error)
+
+    def run(self, seconds: float, until=None) -> bool:
+        """Run for `seconds`, or until `until(harness)` is true; returns whether it became true."""
+        n = round(seconds / self.T)
+        for _ in range(n):
+            self.tick()
+            if until is not None and until(self):
+                return True
+        return False
+
+    def move(self, target: float, timeout: float = 3.0):
+        """Command a move and run until MOTION_DONE; returns seconds to MOTION_DONE or None."""
+        ok, reason = self.axis.move_to(target)
+        if not ok:
+            raise ValueError(reason)
+        start = self.time
+        self.tick()   # the move starts on this tick; MOTION_DONE of the last move is cleared
+        done = self.run(timeout, until=lambda h: h.axis.status & Status.MOTION_DONE)
+        return self.time - start if done else None
+
+    def load_error_counts(self, target: float) -> float:
+        """True slide error from `target` in linear encoder counts."""
+        return (self.plant.x_l - target) * self.plant.load_counts_per_m

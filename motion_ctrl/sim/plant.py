@@ -1,0 +1,196 @@
+"""Physics of the Galil manual's "backlash slide" (DMC-40x0 manual, sampled dual loop example).
+
+A rotary servo motor in a torque-mode amplifier drives a lead screw; the nut drives a slide
+through a backlash gap with finite contact stiffness. A rotary encoder is on the motor, a linear
+encoder on the slide. Modelled:
+
+* amplifier: input clipped at ±amplifier_limit V, current = amplifier_gain·V, torque = Kt·i;
+  a command watchdog (`command` / `advance`) puts the output to 0 V and closes the dynamic
+  brake when no command came for `command_timeout`;
+* motor side: rotor + screw inertia, viscous + Coulomb friction with stiction (Karnopp);
+* lead screw: lead, and a pitch error e(x) (cumulative slope + periodic term) that displaces the
+  nut from the ideal screw position, so a leadscrew table has something real to correct;
+* backlash: gap `backlash` between the nut and the slide flanks; in contact the coupling is a
+  spring-damper (`screw_stiffness`, `screw_damping`) — with the two masses this is the
+  mechanical resonance (~240 Hz by default); out of contact no force passes;
+* slide: mass, viscous + Coulomb friction with stiction, end stops (stiff walls), a brake;
+* encoders quantised to counts (floor, as a quadrature counter reads between edges).
+
+Everything is in load-equivalent linear coordinates internally: the motor position x_m is the
+screw's rotation times lead/2π, its equivalent mass J·(2π/lead)². At start-up both encoders read
+0 and the nut bears on the flank that drives the slide positive (SPEC.md), so a positive move shows
+no backlash error and a negative move after it shows the whole gap.
+
+Integration: semi-implicit (symplectic) Euler at `substep_rate` (20 kHz by default, ωT ≈ 0.06 at
+the resonance), which is stable for the contact spring and conserves energy well.
+"""
+from __future__ import annotations
+
+import math
+
+from motion_ctrl.core.registers import PLANT_PARAMETERS, axis_defaults, plant_consistency
+
+TWO_PI = 2.0 * math.pi
+# Sticking window of the Karnopp friction model: below this speed a mass may stick.
+_STICK_SPEED = 1e-7
+# End stops: a stiff, well damped wall.
+_WALL_STIFFNESS = 1e8
+_WALL_DAMPING = 2e4
+
+
+def _friction_step(v, force, mass, viscous, coulomb, stiction, dt):
+    """One Karnopp friction step: new velocity of a mass with `force` (non-friction) applied."""
+    if v == 0.0:
+        if abs(force) <= stiction:
+            return 0.0                      # stays stuck: static friction balances the force
+        f = force - math.copysign(coulomb, force)
+        return f / mass * dt
+    f = force - viscous * v - math.copysign(coulomb, v)
+    v_new = v + f / mass * dt
+    if v_new * v < 0.0 or abs(v_new) < _STICK_SPEED and abs(force) <= stiction:
+        return 0.0                          # friction would reverse it: it stops (and may stick)
+    return v_new
+
+
+class SlidePlant:
+    """One axis of the backlash slide. `step(volts, dt)` advances the physics by dt seconds."""
+
+    def __init__(self, substep_rate: float = 20000.0, **params):
+        self.substep_rate = substep_rate
+        self.params = axis_defaults(PLANT_PARAMETERS)
+        self.configure(**params)
+        self.x_m = self.v_m = 0.0     # motor side, load-equivalent [m, m/s]
+        self.x_l = self.v_l = 0.0     # slide [m, m/s]
+        self.time = 0.0
+        self.volts = 0.0              # last applied (clipped) amplifier input
+        # The amplifier's command watchdog: no command yet counts as one that timed out.
+        self.commanded = 0.0          # last command received [V]
+        self.command_age = math.inf   # plant time since it came [s]
+        self.tripped = True           # output held at 0 V by the watchdog in the last cycle
+
+    def configure(self, **changes):
+        """Change parameters (validated together; nothing changes if one is refused)."""
+        from motion_ctrl.core.registers import PLANT_AXIS
+        new = dict(self.params)
+        for name, value in changes.items():
+            if name not in PLANT_AXIS:
+                raise ValueError(f'unknown plant parameter {name!r}')
+            reason = PLANT_AXIS[name].check(value)
+            if reason:
+                raise ValueError(reason)
+            new[name] = value
+        reasons = plant_consistency(new)
+        if reasons:
+            raise ValueError('; '.join(reasons))
+        self.params = new
+        p = new
+        self._rad_per_m = TWO_PI / p['lead']
+        self.motor_mass = p['motor_inertia'] * self._rad_per_m ** 2
+        self._force_per_volt = p['amplifier_gain'] * p['torque_constant'] * self._rad_per_m
+        # Rotary friction reflected to the linear coordinate.
+        self._m_visc = p['motor_viscous'] * self._rad_per_m ** 2
+        self._m_visc_braked = self._m_visc + p['dynamic_brake'] * self._rad_per_m ** 2
+        self._m_coul = p['motor_coulomb'] * self._rad_per_m
+        self._m_stic = p['motor_stiction'] * self._rad_per_m
+        self.motor_counts_per_m = p['motor_counts_per_rev'] / p['lead']
+        self.load_counts_per_m = 1.0 / p['load_resolution']
+
+    # -- derived quantities -------------------------------------------------------------------
+    def pitch_error(self, x_m: float) -> float:
+        """Displacement of the nut from the ideal screw position at motor position x_m [m]."""
+        p = self.params
+        return (p['pitch_error_slope'] * x_m
+                + p['pitch_error_amplitude'] * math.sin(TWO_PI * x_m / p['pitch_error_period']))
+
+    @property
+    def resonance_hz(self) -> float:
+        """Two-mass resonance in contact: sqrt(k (1/Mm + 1/Ml)) / 2π."""
+        p = self.params
+        return math.sqrt(p['screw_stiffness'] * (1 / self.motor_mass + 1 / p['slide_mass'])) \
+            / TWO_PI
+
+    def gap(self) -> float:
+        """Nut position relative to the slide's positive-drive flank: 0 in positive contact,
+        −backlash in negative contact."""
+        return self.x_m + self.pitch_error(self.x_m) - self.x_l
+
+    def encoder_counts(self):
+        """(motor counts, load counts), floored as a quadrature counter reads them."""
+        return (math.floor(self.x_m * self.motor_counts_per_m + 1e-9),
+                math.floor(self.x_l * self.load_counts_per_m + 1e-9))
+
+    # -- the amplifier's command watchdog ------------------------------------------------------
+    def command(self, volts: float) -> None:
+        """A command arrived: held (zero-order) until the next one, and the watchdog re-armed."""
+        self.commanded = volts
+        self.command_age = 0.0
+
+    def advance(self, dt: float, cycle: float | None = None) -> None:
+        """One plant cycle of dt on the held command, through the amplifier's watchdog.
+
+        The fieldbus / amplifier-fault rule of a servo drive (EtherCAT SyncManager watchdog,
+        PMAC amplifier fault on a lost command): a drive whose command stream stopped must not
+        go on driving the last value. Once `command_timeout` of plant time has passed without a
+        command, the output is 0 V and the windings are shorted through the brake resistor
+        (dynamic braking, as servo drives do when they disable) until a command comes again.
+        Checked once per cycle, like a drive per fieldbus cycle, and a cycle that came late
+        (longer than `cycle`, the nominal period, when given) counts as at most two: a plant
+        held up by its machine must not cut the output of a live controller whose commands
+        wait in its queue (the controller's feedback_timeout is counted the same way). Counted
+        in plant time, so a lockstep run (a command every cycle) stays deterministic.
+        """
+        # (1 ns slack: five 1 ms cycles add up to 5 ms, not to a hair less)
+        self.tripped = self.command_age >= self.params['command_timeout'] - 1e-9
+        if self.tripped:
+            self.step(0.0, dt, braking=True)
+        else:
+            self.step(self.commanded, dt)
+        self.command_age += dt if cycle is None else min(dt, 2 * cycle)
+
+    # -- integration --------------------------------------------------------------------------
+    def step(self, volts: float, dt: float, braking: bool = False) -> None:
+        """Advance the physics by dt with `volts` on the amplifier input (no watchdog);
+        `braking`: the dynamic brake is closed."""
+        if not math.isfinite(volts):
+            volts = 0.0               # a broken command never reaches the motor
+        p = self.params
+        lim = p['amplifier_limit']
+        volts = min(lim, max(-lim, volts))
+        self.volts = volts
+        n = max(1, math.ceil(dt * self.substep_rate - 1e-9))
+        h = dt / n
+        drive = self._force_per_volt * volts
+        k, c, b = p['screw_stiffness'], p['screw_damping'], p['backlash']
+        mm, ml = self.motor_mass, p['slide_mass']
+        brake = p['brake'] == 1
+        m_visc = self._m_visc_braked if braking else self._m_visc
+        # The pitch error changes by nanometres within one step: evaluated once per step.
+        pitch = self.pitch_error(self.x_m)
+        for _ in range(n):
+            x_m, v_m, x_l, v_l = self.x_m, self.v_m, self.x_l, self.v_l
+            # Contact force nut -> slide (positive pushes the slide positive).
+            d = x_m + pitch - x_l
+            dv = v_m - v_l        # pitch-error slope is tiny: its velocity term is neglected
+            if d > 0.0:
+                fc = max(0.0, k * d + c * dv)
+            elif d < -b:
+                fc = min(0.0, k * (d + b) + c * dv)
+            else:
+                fc = 0.0
+            fw = 0.0
+            if x_l > p['travel_max']:
+                fw = -_WALL_STIFFNESS * (x_l - p['travel_max']) - _WALL_DAMPING * v_l
+            elif x_l < p['travel_min']:
+                fw = -_WALL_STIFFNESS * (x_l - p['travel_min']) - _WALL_DAMPING * v_l
+            v_m = _friction_step(v_m, drive - fc, mm, m_visc, self._m_coul,
+                                 self._m_stic, h)
+            if brake:
+                v_l = 0.0
+            else:
+                v_l = _friction_step(v_l, fc + fw, ml, p['slide_viscous'], p['slide_coulomb'],
+                                     p['slide_stiction'], h)
+            self.x_m = x_m + v_m * h
+            self.v_m = v_m
+            self.x_l = x_l + v_l * h
+            self.v_l = v_l
+        self.time += dt

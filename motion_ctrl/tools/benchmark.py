@@ -1,0 +1,304 @@
+"""Benchmark: what a servo tick costs and how well the loop holds its rate, measured here.
+
+Sections (each prints a small table; paste the output into the README with the machine):
+
+* core   — cost per servo tick of the ROS-free core: Profile.step + Settling.update, and a
+           whole Axis.update at rest and moving (in-process, no DDS).
+* floor  — period jitter of a bare Python sleep loop and of a bare rclpy timer doing nothing
+           (the machine's floor: the VM's scheduler sets it, not this code).
+* dds    — plant and controller as two processes over real DDS at 1 kHz and 2 kHz for 1, 6 and
+           64 axes: achieved servo rate, period jitter p50/p99/max and work per tick (from the
+           controller's /diagnostics), controller CPU per tick (/proc), feedback age at the tick
+           (encoder stamp -> use) and command transport (command stamp -> arrival at a
+           reader in a third process, as the plant receives it).
+* lockstep — sim seconds per wall second of the deterministic lockstep simulation.
+
+Speed is measured here, never asserted in a test.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+
+import numpy as np
+
+
+def _pct(values, q):
+    return float(np.percentile(np.asarray(values), q)) if len(values) else float('nan')
+
+
+# -- core ----------------------------------------------------------------------------------------
+def bench_core(n: int = 20000) -> list[tuple[str, float]]:
+    from motion_ctrl.core.axis import Axis
+    from motion_ctrl.core.profile import Profile
+    from motion_ctrl.core.registers import axis_defaults
+    from motion_ctrl.core.settling import Settling
+    r = axis_defaults()
+    rows = []
+
+    def per_tick(fn, count=n):
+        t = time.perf_counter()
+        for i in range(count):
+            fn(i)
+        return (time.perf_counter() - t) / count * 1e6
+
+    p = Profile(0.0)
+    p.configure(r['max_velocity'], r['max_acceleration'], 20.0, 0.1, 1e-3)
+    s = Settling()
+    s.configure(r['fine_position_tolerance'], r['coarse_position_tolerance'],
+                r['velocity_tolerance'], r['settling_time'])
+
+    def profile_settling(i):
+        if i % 1000 == 0:                     # a new 1-inch move every second, both ways
+            tgt = 0.0254 if (i // 1000) % 2 == 0 else 0.0
+            p.move_to(tgt)
+            s.start_position_move(tgt)
+        p.step(1e-3)
+        s.update(1e-3, command_position=p.position, command_velocity=p.velocity,
+                 profile_done=p.done, actual_position=p.position, actual_velocity=p.velocity)
+    rows.append(('Profile.step + Settling.update (jerk-limited, IT smoothing, moving)',
+                 per_tick(profile_settling)))
+
+    a = Axis('x', r)
+    a.home(0, 0)
+    rows.append(('Axis.update at rest', per_tick(lambda i: a.update(1e-3, 0, 0))))
+    b = Axis('x', r)
+    b.home(0, 0)
+
+    def moving(i):
+        if i % 1000 == 0:
+            b.move_to(0.0254 if (i // 1000) % 2 == 0 else 0.0)
+        pos = b.profile.position
+        b.update(1e-3, int(pos * r['motor_counts_per_m']), int(pos * r['load_counts_per_m']))
+    rows.append(('Axis.update moving (servo law, profile, settling, status)', per_tick(moving)))
+
+    # Two axes following a two-axis trajectory (PVT, quintic): the circle of the draw example;
+    # the polynomials are evaluated once per tick for both (Trajectory.paths).
+    from motion_ctrl.core import trajectory as tj
+    limits = {n: tj.AxisLimits.from_registers(r) for n in 'xy'}
+    circle = tj.circle((-0.01, 0.0), 0.01, 0.02)
+    traj = tj.Trajectory.from_points(['x', 'y'], circle, start={'x': (0.0, 0.0, 0.0),
+                                                                 'y': (0.0, 0.0, 0.0)},
+                                     limits=limits)
+    axes = {n: Axis(n, r) for n in 'xy'}
+    for ax in axes.values():
+        ax.home(0, 0)
+
+    def following(i):
+        if i % 3000 == 0:                    # the circle lasts 3.64 s: start it again
+            paths = traj.paths()
+            for n, ax in axes.items():
+                ax.profile.hold(0.0)
+                assert ax.follow(paths[n])[0]
+        for ax in axes.values():
+            pos = ax.profile.position
+            ax.update(1e-3, int(pos * r['motor_counts_per_m']),
+                      int(pos * r['load_counts_per_m']))
+    rows.append(('2 axes following a 2-axis trajectory (PVT, quintic): both Axis.update',
+                 per_tick(following)))
+    # What Trajectory.paths saves: the same state from scipy's BPoly calls (p, v, a).
+    shared = traj.paths()['x']
+    rows.append(('  of which the trajectory state for both axes (Trajectory.paths)',
+                 per_tick(lambda i: shared.at((i % 3000 + 0.5) * 1e-3))))
+    rows.append(('  the same from scipy (Trajectory.sample: BPoly p, v, a)',
+                 per_tick(lambda i: traj.sample((i % 3000 + 0.5) * 1e-3), n // 4)))
+    return rows
+
+
+# -- floor ---------------------------------------------------------------------------------------
+def bench_sleep_floor(rate: float, seconds: float = 3.0) -> dict:
+    period = 1.0 / rate
+    n = int(seconds * rate)
+    stamps = np.empty(n)
+    nxt = time.perf_counter()
+    for i in range(n):
+        nxt += period
+        delay = nxt - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        stamps[i] = time.perf_counter()
+    dt = np.diff(stamps)
+    jitter = np.abs(dt - period) * 1e6
+    return {'rate_hz': len(dt) / dt.sum(), 'jitter_p50_us': _pct(jitter, 50),
+            'jitter_p99_us': _pct(jitter, 99), 'jitter_max_us': float(jitter.max())}
+
+
+def bench_rclpy_floor(rate: float, seconds: float = 3.0) -> dict:
+    from rclpy.node import Node
+    from rclpy.experimental import EventsExecutor
+    node = Node('bench_floor')
+    stamps = []
+    node.create_timer(1.0 / rate, lambda: stamps.append(time.perf_counter()))
+    ex = EventsExecutor()
+    ex.add_node(node)
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        ex.spin_once(timeout_sec=0.05)
+    ex.shutdown()
+    node.destroy_node()
+    dt = np.diff(np.array(stamps))
+    jitter = np.abs(dt - 1.0 / rate) * 1e6
+    return {'rate_hz': len(dt) / dt.sum(), 'jitter_p50_us': _pct(jitter, 50),
+            'jitter_p99_us': _pct(jitter, 99), 'jitter_max_us': float(jitter.max())}
+
+
+# -- dds -----------------------------------------------------------------------------------------
+def _cpu_seconds(pid: int) -> float:
+    with open(f'/proc/{pid}/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
+    """Loop figures over DDS. The observer (this process) reads only /diagnostics while the
+    rate is measured: a third process taking 1 kHz streams would load the two cores it shares
+    with plant and controller. The command transport is measured after, in a window of its own.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+
+    import msg_defs as md
+    from motion_ctrl.ros.processes import start_slide
+
+    axes = [f'a{i}' for i in range(n_axes)] if n_axes > 1 else ['x']
+    axes_param = '[' + ','.join(axes) + ']'
+    # Many axes: integrate the physics at the servo rate only, so the plant keeps up; the
+    # controller's loop is what is measured.
+    substep = 20000.0 if n_axes <= 6 else rate
+    plant, controller = start_slide(
+        {'axes': axes_param, 'servo_rate': float(rate)},
+        {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep},
+        params_files=False)
+    node = Node('bench_observer')
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    diags, transport = [], []
+
+    def on_diagnostics(msg):
+        for st in msg.status:
+            if st.name.endswith('servo loop'):
+                d = {kv.key: kv.value for kv in st.values}
+                if 'rate_hz' in d:
+                    diags.append(d)
+
+    def on_command(msg):
+        now = node.get_clock().now().nanoseconds * 1e-9
+        transport.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
+
+    def spin(seconds, until=lambda: False):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            executor.spin_once(timeout_sec=0.05)
+
+    node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
+    try:
+        spin(30.0, until=lambda: len(diags) >= 2)        # up, and a second of loop behind it
+        if len(diags) < 2:
+            return {'error': 'nodes did not come up'}
+        diags.clear()
+        cpu0, t0 = _cpu_seconds(controller.proc.pid), time.monotonic()
+        spin(seconds)
+        cpu1, t1 = _cpu_seconds(controller.proc.pid), time.monotonic()
+        loops = list(diags)
+        node.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
+        spin(1.0)                                         # discovery of the new reader
+        transport.clear()
+        spin(2.0)
+    finally:
+        node.destroy_node()
+        executor.shutdown()
+        for n in (controller, plant):
+            n.stop()
+    if not loops:
+        return {'error': 'no diagnostics'}
+    def f(k):
+        return statistics.median(float(d[k]) for d in loops if k in d)
+    ticks = f('rate_hz') * (t1 - t0)
+    return {
+        'rate_hz': f('rate_hz'), 'rate_pct': 100 * f('rate_hz') / rate,
+        'jitter_p50_us': f('jitter_p50_us'), 'jitter_p99_us': f('jitter_p99_us'),
+        'jitter_max_us': max(float(d['jitter_max_us']) for d in loops),
+        'work_us': f('tick_work_mean_us'),
+        'cpu_us_per_tick': (cpu1 - cpu0) / ticks * 1e6 if ticks else float('nan'),
+        'cpu_pct': 100 * (cpu1 - cpu0) / (t1 - t0),
+        'feedback_age_p50_us': f('feedback_age_p50_us'),
+        'feedback_age_p99_us': f('feedback_age_p99_us'),
+        'command_transport_p50_us': _pct(transport, 50) * 1e6,
+        'command_transport_p99_us': _pct(transport, 99) * 1e6,
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description='Measure motion_ctrl servo-loop performance.')
+    ap.add_argument('--sections', default='core,floor,dds,lockstep',
+                    help='comma-separated subset of core,floor,dds,lockstep')
+    ap.add_argument('--seconds', type=float, default=5.0, help='per DDS measurement')
+    ap.add_argument('--rates', default='1000,2000', help='servo rates of the dds section [Hz]')
+    ap.add_argument('--axes', default='1,6,64', help='axis counts of the dds section')
+    a = ap.parse_args(argv)
+    sections = a.sections.split(',')
+    print(f'motion_ctrl benchmark — {platform.processor() or platform.machine()}, '
+          f'{os.cpu_count()} CPUs, Python {platform.python_version()}, {platform.system()} '
+          f'{platform.release()}')
+    if 'core' in sections:
+        print('\n## core (per servo tick, one axis, no ROS)\n')
+        print('| what | µs per tick |\n|---|---:|')
+        for name, us in bench_core():
+            print(f'| {name} | {us:.1f} |')
+    ros = [s for s in sections if s in ('floor', 'dds', 'lockstep')]
+    if ros:
+        from motion_ctrl.ros import ros_env
+        ros_env.private_domain()
+        import rclpy
+        rclpy.init()
+    if 'floor' in sections:
+        print('\n## floor (the machine: period jitter of loops that do nothing)\n')
+        print('| loop | rate [Hz] | jitter p50 [µs] | p99 [µs] | max [µs] |\n'
+              '|---|---:|---:|---:|---:|')
+        for rate in (1000.0, 2000.0):
+            for name, fn in (('time.sleep loop', bench_sleep_floor),
+                             ('rclpy timer, EventsExecutor', bench_rclpy_floor)):
+                r = fn(rate)
+                print(f'| {name} @ {rate:g} Hz | {r["rate_hz"]:.1f} | {r["jitter_p50_us"]:.0f} | '
+                      f'{r["jitter_p99_us"]:.0f} | {r["jitter_max_us"]:.0f} |')
+    if 'dds' in sections:
+        print('\n## dds (plant + controller as two processes)\n')
+        print('| servo rate | axes | achieved [Hz] | % of nominal | jitter p50 / p99 / max [µs] '
+              '| work per tick [µs] | controller CPU per tick [µs] (CPU %) | '
+              'encoder → tick p50 / p99 [µs] | command → plant p50 / p99 [µs] |'
+              '\n|---:|---:|---:|---:|---|---:|---|---|---|')
+        for rate in (float(x) for x in a.rates.split(',')):
+            for n in (int(x) for x in a.axes.split(',')):
+                r = bench_dds(rate, n, a.seconds)
+                if 'error' in r:
+                    print(f'| {rate:g} | {n} | {r["error"]} | | | | | | |')
+                    continue
+                print(f'| {rate:g} | {n} | {r["rate_hz"]:.1f} | {r["rate_pct"]:.1f} | '
+                      f'{r["jitter_p50_us"]:.0f} / {r["jitter_p99_us"]:.0f} / '
+                      f'{r["jitter_max_us"]:.0f} | {r["work_us"]:.0f} | '
+                      f'{r["cpu_us_per_tick"]:.0f} ({r["cpu_pct"]:.0f} %) | '
+                      f'{r["feedback_age_p50_us"]:.0f} / {r["feedback_age_p99_us"]:.0f} | '
+                      f'{r["command_transport_p50_us"]:.0f} / '
+                      f'{r["command_transport_p99_us"]:.0f} |')
+    if 'lockstep' in sections:
+        try:
+            from motion_ctrl.ros.lockstep import bench_lockstep
+        except ImportError:
+            print('\n## lockstep: not available')
+        else:
+            print('\n## lockstep\n')
+            speed = bench_lockstep()
+            print(f'sim seconds per wall second: {speed:.2f}')
+    if ros:
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,200 @@
+"""The coordinated-motion example (issue 16): two axes draw a circle and a rounded square.
+
+Starts plant and controller with two axes, x and y (each the default backlash slide), sends each
+shape as one trajectory_msgs/JointTrajectory on `joint_trajectory` (PMAC PVT: both axes on one
+time base), and judges the path the way a ballbar test does: the contour error, the distance of
+the true slide position (XY, from `plant_states`, the simulation's ground truth) from the
+commanded path, in linear counts; the first quarter of the path (the speed ramp) is left out of
+the figures, as the issue asks. Prints the figures, writes a PNG: the path and, magnified, the
+deviation from it, and the contour error along the path.
+
+The controller runs `feedback: dual` with friction feedforward (PMAC Ixx68) set to the slide's
+Coulomb friction in volts (--friction-ff, 0.24 V: motor 0.004 N·m plus slide 10 N through the
+5.08 mm lead, over 0.1 N·m/A × 0.5 A/V): without it each axis stalls for a moment where its
+velocity reverses (the quadrant glitch of every contouring machine), 19 counts on the circle in
+the in-process harness.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+from motion_ctrl.core import trajectory as tj
+
+from motion_ctrl.ros import ros_env
+from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, axis_defaults
+
+AXES = ('x', 'y')
+PATH_DT = 5e-5        # s: the commanded path is sampled this finely for the contour error
+
+
+def shape_points(shape: str, start: dict, radius: float, speed: float) -> tuple[tj.Points, tuple]:
+    """The shape's points starting (at rest) where the axes are; its centre."""
+    x0, y0 = start['x'], start['y']
+    if shape == 'circle':
+        center = (x0 - radius, y0)                 # start_angle 0: the start is centre + (r, 0)
+        return tj.circle(center, radius, speed, start_time=0.1), center
+    side = 2 * radius
+    center = (x0, y0 + side / 2)                  # starts at the middle of the lower side
+    return tj.rounded_square(center, side, radius / 4, speed, start_time=0.1), center
+
+
+def judge(points: tj.Points, start: dict, truth_t, truth_xy) -> dict:
+    """Contour error [counts] of the true XY samples (times from the trajectory's start) after
+    the first quarter of the path (by length) and up to its end."""
+    limits = {a: tj.AxisLimits.from_registers(axis_defaults()) for a in AXES}
+    traj = tj.Trajectory.from_points(list(AXES), points, start={a: (start[a], 0.0, 0.0)
+                                                                 for a in AXES}, limits=limits)
+    t = np.arange(0.0, traj.duration + PATH_DT, PATH_DT)
+    path = traj.sample(t)[0]
+    length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    t_quarter = t[np.searchsorted(length, length[-1] / 4)]
+    err = tj.contour_error(path, truth_xy) * LOAD_COUNTS_PER_M
+    judged = (truth_t >= t_quarter) & (truth_t <= traj.duration)
+    e = err[judged]
+    return {'path': path, 'error': err, 't': truth_t, 'judged': judged,
+            'rms': float(np.sqrt(np.mean(e ** 2))), 'peak': float(e.max()),
+            'duration': traj.duration, 't_quarter': float(t_quarter)}
+
+
+def plot(results: dict, png: pathlib.Path, magnify: float = 200.0) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axs = plt.subplots(2, len(results), figsize=(6.5 * len(results), 10), squeeze=False)
+    for col, (shape, r) in enumerate(results.items()):
+        ax = axs[0][col]
+        path, xy = r['path'], r['truth']
+        # The deviation, magnified along the way from the nearest commanded point (ballbar).
+        from scipy.spatial import cKDTree
+        near = path[cKDTree(path).query(xy)[1]]
+        shown = near + magnify * (xy - near)
+        ax.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, 'k-', lw=1, label='commanded path')
+        ax.plot(shown[:, 0] * 1e3, shown[:, 1] * 1e3, 'r-', lw=0.8,
+                label=f'true slide, deviation ×{magnify:g}')
+        ax.set_aspect('equal')
+        ax.set_xlabel('x [mm]')
+        ax.set_ylabel('y [mm]')
+        ax.set_title(f'{shape}: contour error RMS {r["rms"]:.2f}, peak {r["peak"]:.2f} counts '
+                     '(after the first quarter)', fontsize=9)
+        ax.legend(fontsize=8, loc='upper right')
+        ax = axs[1][col]
+        ax.plot(r['t'], r['error'], 'b-', lw=0.8)
+        ax.axvspan(0, r['t_quarter'], color='0.9', label='first quarter (not judged)')
+        ax.axvline(r['duration'], color='k', ls=':', label='end of the path')
+        ax.set_xlabel('time from the trajectory start [s]')
+        ax.set_ylabel('contour error [linear counts]')
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--shapes', default='circle,square',
+                    help='comma-separated: circle, square (default both)')
+    ap.add_argument('--radius', type=float, default=0.010,
+                    help='circle radius; the square has sides of twice it [m] (default 0.01)')
+    ap.add_argument('--speed', type=float, default=0.020, help='path speed [m/s] (0.02)')
+    ap.add_argument('--feedback', default='dual', choices=('motor', 'load', 'dual', 'sampled'))
+    ap.add_argument('--friction-ff', type=float, default=0.24,
+                    help='friction feedforward of both axes [V] (0.24: the slide\'s friction)')
+    ap.add_argument('--realtime-priority', type=int, default=30,
+                    help='realtime_priority of both nodes (0: normal scheduling; README Notes: '
+                         'with this example running beside them on two cores, normal '
+                         'scheduling lets the nodes wait)')
+    ap.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
+                    help='another controller parameter (repeatable), e.g. x.kp:=20000')
+    ap.add_argument('-o', '--out', default=None, help='directory (default out/draw-<time>)')
+    args = ap.parse_args(argv)
+    shapes = [s.strip() for s in args.shapes.split(',') if s.strip()]
+    extra = dict(p.split(':=', 1) for p in args.param if ':=' in p)
+    if len(extra) != len(args.param):
+        ap.error('--param takes NAME:=VALUE')
+    if not shapes or any(s not in ('circle', 'square') for s in shapes):
+        ap.error(f'--shapes: circle and/or square, got {args.shapes!r}')
+    domain = ros_env.private_domain()
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    import msg_defs as md
+    from motion_ctrl.ros.client import SlideClient
+    from motion_ctrl.ros.processes import start_slide
+
+    out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/draw-%Y%m%d-%H%M%S'))
+    out.mkdir(parents=True, exist_ok=True)
+    axes = '[' + ', '.join(f"'{a}'" for a in AXES) + ']'     # quoted: y is a YAML boolean
+    ctrl = {'axes': axes} | {f'{a}.{k}': v for a in AXES for k, v in
+                             (('feedback', args.feedback), ('friction_ff', args.friction_ff))}
+    rt = {'realtime_priority': args.realtime_priority}
+    ctrl |= rt | extra
+    print(f'draw: starting plant and controller for axes x, y (ROS_DOMAIN_ID={domain}, logs in '
+          f'{out})')
+    nodes = start_slide(ctrl, {'axes': axes} | rt, log_dir=out)
+    rclpy.init()
+    client = SlideClient(axes=AXES)
+    command: dict = {}
+    truth: list = []
+
+    def on_reference(msg):
+        command.update(zip(msg.name, msg.position))
+
+    def on_truth(msg):
+        d = dict(zip(msg.name, msg.position))
+        if all(md.load_joint(a) in d for a in AXES):
+            truth.append((time.time(), d[md.load_joint('x')], d[md.load_joint('y')]))
+    client.create_subscription(JointState, md.REFERENCE_STATES, on_reference, md.SERVO_READ_QOS)
+    client.create_subscription(JointState, md.PLANT_STATES, on_truth, md.SERVO_READ_QOS)
+    results = {}
+    code = 0
+    try:
+        if not client.wait_ready(20.0) or not client.spin_until(
+                lambda: all(a in command for a in AXES), 5.0):
+            print(f'draw: the nodes did not come up ({client.not_ready()}); see the logs',
+                  file=sys.stderr)
+            return 1
+        client.spin_until(lambda: client.pub_trajectory.get_subscription_count() > 0, 5.0)
+        print(f'{"shape":<8}{"points":>7}{"time [s]":>9}{"contour RMS":>13}{"peak":>8}'
+              f'{"x error":>9}{"y error":>9}{"MOTION_DONE":>13}   (counts; after 1st quarter)')
+        for shape in shapes:
+            start = dict(command)
+            points, _ = shape_points(shape, start, args.radius, args.speed)
+            truth.clear()
+            t0 = time.time()
+            done = client.follow(list(AXES), points.times, points.positions, points.velocities,
+                                 points.accelerations) is not None
+            client.spin_until(lambda: False, 0.1)
+            samples = np.array(truth).reshape(-1, 3)
+            if not done or len(samples) == 0:
+                print(f'{shape:<8}did not finish (see the logs in {out})')
+                code = 1
+                continue
+            r = judge(points, start, samples[:, 0] - t0, samples[:, 1:])
+            r['truth'] = samples[:, 1:]
+            results[shape] = r
+            end = points.positions[-1]
+            errs = [(samples[-1, 1 + j] - end[j]) * LOAD_COUNTS_PER_M for j in range(2)]
+            print(f'{shape:<8}{len(points.times):>7}{points.times[-1]:>9.2f}{r["rms"]:>13.2f}'
+                  f'{r["peak"]:>8.2f}{errs[0]:>+9.2f}{errs[1]:>+9.2f}'
+                  f'{"yes":>13}')
+    finally:
+        client.destroy_node()
+        rclpy.try_shutdown()
+        rcs = [n.stop() for n in reversed(nodes)]
+        print('draw: nodes stopped (exit codes ' + ', '.join(map(str, rcs)) + ')')
+    if results:
+        png = out / 'draw.png'
+        plot(results, png)
+        print(f'draw: plot in {png}')
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

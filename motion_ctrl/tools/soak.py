@@ -1,0 +1,206 @@
+"""The servo loop while people use ROS on it: 1-inch moves back and forth over DDS, with ROS
+participants joining and leaving (`motion_ctrl.ros.visitor`, like `ros2 param get` or `ros2 topic
+echo`), optionally a recorder started and stopped and a busy CPU loop beside it.
+
+`scripts/soak [--minutes 10] [--interval 5] [--busy 1] [--realtime-priority 30]` runs it with
+the shipped parameters (and the nodes at real-time priority unless told 0) and
+prints the count of moves, of faults (FEEDBACK_FAULT, FOLLOWING_ERROR_FATAL), of moves that end
+within 1 linear count on the true slide, the longest encoder wait the controller saw, and the RSS
+of both nodes at start and end. The churn test (test/test_ros_churn.py) drives the same
+`Soak` with 50 visitors and a recorder.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import pathlib
+import subprocess
+import sys
+import threading
+import time
+
+from motion_ctrl.ros import ros_env
+from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
+
+BUSY_LOOP = 'while True: pass'
+
+
+def rss_kb(pid: int) -> int:
+    """Resident set size of a process [kB] (Linux)."""
+    with open(f'/proc/{pid}/status') as f:
+        return next(int(line.split()[1]) for line in f if line.startswith('VmRSS:'))
+
+
+class Visitors:
+    """Starts `python -m motion_ctrl.ros.visitor` every `interval` seconds in a thread, at most
+    `parallel` alive at once, until `count` have run or stop() is called."""
+
+    def __init__(self, interval: float, count: int | None = None, parallel: int = 1,
+                 env=None):
+        self.interval, self.count, self.parallel, self.env = interval, count, parallel, env
+        self.started = self.finished = 0
+        self.failed: list[str] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> 'Visitors':
+        self._thread.start()
+        return self
+
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        alive: list[subprocess.Popen] = []
+        while not self._stop.is_set() and (self.count is None or self.started < self.count):
+            alive = [p for p in alive if not self._reap(p)]
+            if len(alive) < self.parallel:
+                alive.append(subprocess.Popen(
+                    [sys.executable, '-m', 'motion_ctrl.ros.visitor'], env=self.env,
+                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
+                self.started += 1
+            self._stop.wait(self.interval)
+        for p in alive:
+            p.wait()
+            self._reap(p)
+
+    def _reap(self, p: subprocess.Popen) -> bool:
+        if p.poll() is None:
+            return False
+        out = p.stdout.read() if p.stdout else ''
+        self.finished += 1
+        if p.returncode != 0:
+            self.failed.append(out.strip().splitlines()[-1] if out.strip() else
+                               f'exit {p.returncode}')
+        return True
+
+
+class Soak:
+    """Moves `axis` between 0 and `distance` through `client` (a SlideClient with services)
+    and keeps the score: every move's result and final error on the true slide."""
+
+    def __init__(self, client, axis: str = 'x', distance: float = INCH):
+        self.client, self.axis, self.distance = client, axis, distance
+        self.moves = 0
+        self.within_1_count = 0
+        self.faults: list[str] = []     # status words of moves that ended in a fault
+        self.errors: list[float] = []   # final error of every move [linear counts]
+        self.target = 0.0
+
+    def move(self) -> None:
+        from msg_defs.status import Status
+        c = self.client
+        self.target = self.distance if self.target == 0.0 else 0.0
+        took = c.move({self.axis: self.target}, timeout=5.0)
+        self.moves += 1
+        word = c.status[self.axis] or 0
+        if took is None or word & (Status.FEEDBACK_FAULT | Status.FOLLOWING_ERROR_FATAL):
+            self.faults.append(repr(Status(word)))
+            c.call('reset')
+            c.call('enable', True)
+            c.spin_until(lambda: False, 0.2)
+            return
+        c.spin_until(lambda: False, 0.05)         # the latest truth after MOTION_DONE
+        err = (c.load_position(self.axis) - self.target) * LOAD_COUNTS_PER_M
+        self.errors.append(err)
+        self.within_1_count += abs(err) <= 1.0
+
+    def summary(self) -> str:
+        worst = max((abs(e) for e in self.errors), default=float('nan'))
+        return (f'moves {self.moves}, faults {len(self.faults)}, within 1 count '
+                f'{self.within_1_count}/{self.moves} (worst {worst:.2f} counts)')
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--minutes', type=float, default=10.0)
+    ap.add_argument('--interval', type=float, default=5.0,
+                    help='seconds between visitors (new ROS participants)')
+    ap.add_argument('--busy', type=int, default=1, help='busy CPU loops beside the nodes')
+    ap.add_argument('--realtime-priority', type=int, default=30,
+                    help='realtime_priority of both nodes (0: normal scheduling)')
+    ap.add_argument('--visitors', type=int, default=None,
+                    help='stop after this many visitors instead of after --minutes')
+    ap.add_argument('--parallel', type=int, default=1, help='visitors alive at once, at most')
+    ap.add_argument('--record', action='store_true',
+                    help='run `record` from the first to the second third of the visitors')
+    ap.add_argument('-o', '--out', default=None, help='log directory (default out/soak-<time>)')
+    a = ap.parse_args(argv)
+    domain = ros_env.private_domain()
+    import rclpy
+    from motion_ctrl.ros.client import SlideClient
+    from motion_ctrl.ros.processes import start_slide
+
+    out = pathlib.Path(a.out or datetime.datetime.now().strftime('out/soak-%Y%m%d-%H%M%S'))
+    out.mkdir(parents=True, exist_ok=True)
+    print(f'soak: {a.minutes:g} min of 1-inch moves, a visitor every {a.interval:g} s, '
+          f'{a.busy} busy loop(s), realtime_priority {a.realtime_priority} '
+          f'(ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
+    rt = {'realtime_priority': a.realtime_priority}
+    nodes = start_slide(rt, rt, log_dir=out)
+    busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(a.busy)]
+    rclpy.init()
+    client = SlideClient(services=True)
+    visitors = recorder = None
+    try:
+        if not client.wait_ready(30.0):
+            print(f'soak: the nodes did not come up ({client.not_ready()})', file=sys.stderr)
+            return 1
+        rss0 = [rss_kb(n.proc.pid) for n in nodes]
+        soak = Soak(client)
+        visitors = Visitors(a.interval, a.visitors, a.parallel).start()
+        end = time.monotonic() + 60.0 * a.minutes
+        while (not visitors.done() if a.visitors else time.monotonic() < end):
+            soak.move()
+            if a.record:
+                recorder = _record_between(recorder, visitors, out / 'bag')
+        soak.move()
+        visitors.stop()
+        rss1 = [rss_kb(n.proc.pid) for n in nodes]
+    finally:
+        if visitors is not None and not visitors.done():
+            visitors.stop()
+        for b in busy:
+            b.kill()
+        if recorder is not None and recorder.poll() is None:
+            recorder.kill()
+        client.destroy_node()
+        rclpy.try_shutdown()
+        rcs = [n.stop() for n in reversed(nodes)]
+    log = (out / 'controller.log').read_text()
+    print(f'soak: {soak.summary()}; visitors {visitors.finished} '
+          f'({len(visitors.failed)} failed); FEEDBACK_FAULT lines in the controller log: '
+          f'{log.count("FEEDBACK_FAULT")}')
+    for name, r0, r1 in zip(('plant', 'controller'), rss0, rss1):
+        print(f'soak: {name} RSS {r0} kB -> {r1} kB ({100.0 * (r1 - r0) / r0:+.1f} %)')
+    print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
+    for f in soak.faults:
+        print(f'soak: fault: {f}')
+    if a.record:
+        print(f'soak: recorder exit code {recorder.returncode if recorder else None}')
+    ok = (not soak.faults and soak.within_1_count == soak.moves and not visitors.failed
+          and 'FEEDBACK_FAULT' not in log
+          and (not a.record or (recorder is not None and recorder.returncode == 0)))
+    return 0 if ok else 1
+
+
+def _record_between(recorder, visitors: Visitors, bag):
+    """`record` started when a third of the visitors came, stopped (SIGINT) at two thirds."""
+    import signal
+    count = visitors.count or 0                  # (the soak's visitors run to a count)
+    if recorder is None and visitors.started >= count // 3:
+        return subprocess.Popen([sys.executable, '-m', 'motion_ctrl.tools.record', '-o', str(bag)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if recorder is not None and recorder.poll() is None \
+            and visitors.started >= 2 * count // 3:
+        recorder.send_signal(signal.SIGINT)
+        recorder.wait(30.0)
+    return recorder
+
+
+if __name__ == '__main__':
+    sys.exit(main())
