@@ -316,7 +316,7 @@ def _servo_law_response(regs, ad, bd, gain, latency_ticks, seconds=3.0):
     r = registers.axis_defaults() | regs | dict(
         kp=regs['kp'] * gain, ki=regs['ki'] * gain, kd=regs['kd'] * gain,
         integration_mode='always', integration_limit=10.0, output_limit=10.0)
-    law.configure(r)
+    law.configure(registers.LawConfig.of(r))
     x = np.array([1e-6, 0.0, 1e-6, 0.0])
     prev = x[0]
     pending = [0.0] * latency_ticks

@@ -10,14 +10,15 @@ semantics"; seeds 000 = RMC Deadband Tolerance, 002 = PMAC Ixx34..Ixx39), in SI 
 
 The servo period is T = 1 ms throughout. No ROS.
 """
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from motion_ctrl.core import notch
-from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, MODES, axis_defaults,
-                                   consistency)
+from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, LawConfig,
+                                        axis_defaults, consistency)
 from motion_ctrl.core.servo_law import ServoLaw
 
 T = 1e-3
@@ -33,7 +34,7 @@ PINNED = dict(mode='position_pid', kp=0.0, ki=0.0, kd=0.0, kvff=0.0, kaff=0.0, f
 
 def law(**registers) -> ServoLaw:
     s = ServoLaw()
-    s.configure(axis_defaults(AXIS_REGISTERS) | PINNED | registers)
+    s.configure(LawConfig.of(axis_defaults(AXIS_REGISTERS) | PINNED | registers))
     return s
 
 
@@ -129,8 +130,8 @@ def test_lowering_the_integration_limit_clamps_a_held_integrator():
     s = law(ki=1e5, integration_mode='at_rest')
     for _ in range(5):
         tick(s, 1e-3)                         # 0.5 V
-    s.configure(axis_defaults(AXIS_REGISTERS) | PINNED
-                | dict(ki=1e5, integration_mode='at_rest', integration_limit=0.2))
+    s.configure(LawConfig.of(axis_defaults(AXIS_REGISTERS) | PINNED
+                             | dict(ki=1e5, integration_mode='at_rest', integration_limit=0.2)))
     assert tick(s, 1e-3, cmd_vel=0.01) == pytest.approx(0.2, abs=1e-12)   # held, but clamped
 
 
@@ -384,7 +385,8 @@ def test_reset_and_mode_change_clear_the_state():
     assert (s.integral, s.output, s.saturated, s.integrator_held) == (0.0, 0.0, False, False)
     for _ in range(5):
         tick(s, 1e-4)
-    s.configure(axis_defaults(AXIS_REGISTERS) | PINNED | dict(mode='position_ipd', ki=1e5))
+    s.configure(LawConfig.of(axis_defaults(AXIS_REGISTERS) | PINNED
+                             | dict(mode='position_ipd', ki=1e5)))
     assert s.integral == 0.0
     assert tick(s, 1e-4) == pytest.approx(0.01, abs=1e-12)
 
@@ -392,28 +394,9 @@ def test_reset_and_mode_change_clear_the_state():
 # ---------------------------------------------------------------------------------------------
 # the register table: every register the servo law reads
 
-class _Recorder(dict):
-    def __init__(self, *a, **kw):
-        super().__init__(*a, **kw)
-        self.used = set()
-
-    def __getitem__(self, key):
-        self.used.add(key)
-        return super().__getitem__(key)
-
-
 def servo_law_registers() -> set:
-    """The registers the servo law actually reads, in every mode."""
-    used = set()
-    for mode in MODES:
-        for stopped in (True, False):
-            r = _Recorder(axis_defaults(AXIS_REGISTERS) | PINNED
-                          | dict(mode=mode, deadband_tolerance=1e-4, output_deadband=0.1))
-            s = ServoLaw()
-            s.configure(r)
-            tick(s, 1e-5, cmd_vel=0.0 if stopped else 0.01)
-            used |= r.used
-    return used
+    """The registers the servo law reads: the fields of its typed configuration."""
+    return {f.name for f in dataclasses.fields(LawConfig) if f.init}
 
 
 # unit and vendor register of each, from the manuals (PMAC Ixx, RMC, Galil)

@@ -68,7 +68,8 @@ from motion_ctrl.core.backlash import BacklashCompensation
 from motion_ctrl.core.dual_loop import SampledCorrection, feedback_encoders
 from motion_ctrl.core.gather import Gather
 from motion_ctrl.core.profile import Profile
-from motion_ctrl.core.registers import AXIS_REGISTERS, CONTROLLER_AXIS, axis_defaults, consistency
+from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, LawConfig, axis_defaults,
+                                        consistency)
 from motion_ctrl.core.servo_law import ServoLaw
 from motion_ctrl.core.settling import Settling, status_word
 
@@ -192,7 +193,7 @@ class Axis:
         self.sampled.configure(r['correction_tolerance'], r['correction_max_moves'],
                                r['load_counts_per_m'], r['settling_time'])
         old = self.r
-        self.servo.configure(r)
+        self.servo.configure(LawConfig.of(r))
         self.r = r
         # What the servo tick needs, derived once here rather than every tick.
         feedback = r['feedback']

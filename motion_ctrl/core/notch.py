@@ -280,6 +280,12 @@ class Biquad:
         v = float(value)
         self._x1 = self._x2 = self._y1 = self._y2 = v
 
+    def peek(self, x):
+        """What `step(x)` would return, without advancing the filter (the servo law tests this
+        tick's output for saturation before it commits the integration)."""
+        return self._g * x + self._b1 * self._x1 + self._b2 * self._x2 \
+            - self._a1 * self._y1 - self._a2 * self._y2
+
     def step(self, x):
         """Filter one sample; returns the output."""
         y = self._g * x + self._b1 * self._x1 + self._b2 * self._x2 \

@@ -11,7 +11,7 @@ Galil manual's backlash slide (1 in = 40,000 motor counts = 10,000 linear counts
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 INCH = 0.0254
 MOTOR_COUNTS_PER_M = 40000 / INCH     # 8,000 counts/rev on a 5.08 mm lead
@@ -303,6 +303,65 @@ def consistency(v: dict) -> list[str]:
     except ValueError as e:
         reasons.append(f'notch_n1..notch_d2: {e}')
     return reasons
+
+
+def refusals(values: dict, table: dict | None = None, rules=None) -> list[str]:
+    """Every reason a complete set of one axis' register values is refused: each value by its
+    row (type, range, choices), then the cross-register rules. The one validation path: the
+    nodes' parameter callbacks and the core's configuration both come here."""
+    table = CONTROLLER_AXIS if table is None else table
+    rules = consistency if rules is None else rules
+    reasons = [f'unknown register {name!r}' for name in values if name not in table]
+    reasons += [r for r in (table[n].check(v) for n, v in values.items() if n in table) if r]
+    return reasons or rules(values)
+
+
+# -- typed configuration: what each core object reads, made once per register set -------------
+# Field names are register names; no field has a default (the table's is the only one), and
+# derived fields are computed once here so that a servo tick compares no strings and looks up
+# no keys.
+def _of(cls, values: dict):
+    return cls(**{f.name: values[f.name] for f in fields(cls) if f.init})
+
+
+@dataclass(frozen=True, slots=True)
+class LawConfig:
+    """The servo law's registers (PMAC Ixx29..39, 63, 67..69; RMC deadband)."""
+    mode: str
+    kp: float
+    ki: float
+    kd: float
+    kvff: float
+    kaff: float
+    friction_ff: float
+    bias: float
+    integration_mode: str
+    integration_limit: float
+    output_limit: float
+    output_deadband: float
+    deadband_tolerance: float
+    position_error_limit: float
+    notch_n1: float
+    notch_n2: float
+    notch_d1: float
+    notch_d2: float
+    position_mode: bool = field(init=False)       # mode position_* (else velocity_*)
+    pid: bool = field(init=False)                 # mode *_pid (else *_ipd)
+    integrate_at_rest: bool = field(init=False)   # integration_mode at_rest (Ixx34 = 1)
+
+    def __post_init__(self):
+        object.__setattr__(self, 'position_mode', self.mode.startswith('position'))
+        object.__setattr__(self, 'pid', self.mode.endswith('pid'))
+        object.__setattr__(self, 'integrate_at_rest', self.integration_mode == 'at_rest')
+
+    @classmethod
+    def of(cls, values: dict) -> LawConfig:
+        """From a dict of (validated) register values; extra keys are ignored."""
+        return _of(cls, values)
+
+    @property
+    def notch(self) -> tuple[float, float, float, float]:
+        return (self.notch_n1, self.notch_n2, self.notch_d1, self.notch_d2)
 
 
 # Plant parameters (per axis `<axis>.<name>` on the plant node): the Galil backlash slide.

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 from motion_ctrl.core import deadband as db
 from motion_ctrl.core.notch import Biquad
+from motion_ctrl.core.registers import AXIS_REGISTERS, LawConfig, axis_defaults
 
 
 def _sign(v: float) -> float:
@@ -58,34 +59,112 @@ def _clamp(v: float, lo: float, hi: float) -> float:
     return lo if v < lo else hi if v > hi else v
 
 
-class ServoLaw:
-    """One axis' servo filter. `configure(values)` takes the register values (a dict with the
-    keys of registers.AXIS_REGISTERS); `update(...)` computes one tick's output in volts."""
+class _Tick:
+    """What one tick hands the control law: the error, feedforward and measurements, and the
+    finishing stage (output deadband with ratioing) to apply to the notch output."""
+    __slots__ = ('error', 'raw_error', 'feedforward', 'meas', 'meas_rate', 'target_stopped',
+                 'anti_hunting', 'cmd_vel')
+    error: float            # the loop's error (position error clipped at Ixx67, or velocity)
+    raw_error: float        # unclipped, for deadband ratioing and anti-hunting
+    feedforward: float      # kvff·CV + kaff·CA + friction_ff·sgn(CV) + bias
+    meas: float             # the measurement I-PD acts on (position, or velocity)
+    meas_rate: float        # its rate on the velocity-loop encoder (kd's input)
+    target_stopped: bool
+    anti_hunting: bool
+    cmd_vel: float
 
-    def __init__(self):
+    def finish(self, law: ServoLaw, v: float) -> float:
+        c = law.config
+        return db.apply_deadband(v, c.output_deadband, self.raw_error, c.deadband_tolerance,
+                                 self.target_stopped, c.position_mode)
+
+
+class PidLaw:
+    """PMAC PID: out = kp·FE + I + ff − kd·AV. The integrator input is off while
+    integration_mode is at_rest and the commanded velocity is non-zero (Ixx34), while this
+    tick's output would saturate (Ixx69), and anti-hunting lets it only wind down (RMC)."""
+
+    @staticmethod
+    def update(law: ServoLaw, k: _Tick, dt: float) -> float:
+        c = law.config
+        held = c.integrate_at_rest and k.cmd_vel != 0.0
+        il = c.integration_limit
+        i_old = _clamp(law.integral, -il, il)        # Ixx63 may have been lowered
+        i_new = i_old
+        if not held:
+            free = _clamp(i_old + c.ki * k.error * dt, -il, il)
+            i_new = free
+            if k.anti_hunting:
+                i_new = db.limit_integral_to_wind_down(i_old, free)
+                held = i_new != free                  # the rule stopped some growth
+        # kd on the velocity-loop encoder's velocity (position modes) or acceleration.
+        loop = c.kp * k.error - c.kd * k.meas_rate
+        # No integration while the output saturates (PMAC Ixx69): test this tick's output
+        # with the integration before committing it (when there is one to test).
+        if i_new != i_old and abs(k.finish(law, law.notch.peek(loop + i_new + k.feedforward))) \
+                >= c.output_limit:
+            i_new = i_old
+            held = True
+        law.integral = i_new
+        out = k.finish(law, law.notch.step(loop + i_new + k.feedforward))
+        law.integrator_held = held or abs(out) >= c.output_limit
+        return out
+
+
+class IpdLaw:
+    """Delta RMC I-PD, incremental: CO(n) = CO(n−1) + ki·dt·e − kp·Δact − kd·Δ(act rate). The
+    state CO carries I, P and D together and is clamped so that CO + feedforward + deadband
+    stays within ±output_limit (anti-windup); anti-hunting restricts only the ki·dt·e term."""
+
+    @staticmethod
+    def update(law: ServoLaw, k: _Tick, dt: float) -> float:
+        c = law.config
+        prev = k.meas if law.prev_act is None else law.prev_act      # first tick: no step
+        prev_rate = k.meas_rate if law.prev_act_vel is None else law.prev_act_vel
+        co_old = law.co
+        inc_i = c.ki * dt * k.error
+        held = False
+        if k.anti_hunting:
+            wound = db.limit_integral_to_wind_down(co_old, co_old + inc_i)
+            held = wound != co_old + inc_i
+            inc_i = wound - co_old                    # may only wind down
+        co = co_old + inc_i - c.kp * (k.meas - prev) - c.kd * (k.meas_rate - prev_rate)
+        law.prev_act, law.prev_act_vel = k.meas, k.meas_rate
+        room = max(c.output_limit - c.output_deadband, 0.0)
+        co_clamped = _clamp(co, -room - k.feedforward, room - k.feedforward)
+        law.co = law.integral = co_clamped
+        law.integrator_held = held or co_clamped != co
+        return k.finish(law, law.notch.step(law.co + k.feedforward))
+
+
+class ServoLaw:
+    """One axis' servo filter: the loop sum by the PID or I-PD law of `config.mode`, then the
+    notch, the output deadband and the output limit. `configure(LawConfig)` takes the
+    registers (the table's defaults until then); `update(...)` computes one tick's output."""
+
+    def __init__(self, config: LawConfig | None = None):
         self.notch = Biquad()
-        # Last two inputs / outputs fed to / returned by the notch, to predict its next output
-        # (`_notch_peek`) without stepping it: the saturation test needs the output first.
-        self._hist = (0.0, 0.0, 0.0, 0.0)
-        self._nc = (1.0, 0.0, 0.0, 0.0, 0.0)
         self.integral = 0.0          # PID integrator output [V]; I-PD: CO
         self.co = 0.0                # I-PD controller output state [V]
-        self.prev_act = None         # I-PD: previous actual position (or velocity)
-        self.prev_act_vel = None     # I-PD: previous actual velocity (or acceleration)
+        self.prev_act: float | None = None       # I-PD: previous measurement
+        self.prev_act_vel: float | None = None   # I-PD: previous measurement rate
         self.output = 0.0
         self.saturated = False
         self.integrator_held = False
         self.anti_hunting = False
-        self.r = None
+        self._tick = _Tick()
+        self.config = config or LawConfig.of(axis_defaults(AXIS_REGISTERS))
+        self._law: type[PidLaw] | type[IpdLaw] = PidLaw
+        self.configure(self.config)
 
-    def configure(self, r: dict) -> None:
-        self.notch.configure(r['notch_n1'], r['notch_n2'], r['notch_d1'], r['notch_d2'])
-        n1, n2, d1, d2 = self.notch.coefficients
-        g = self.notch.numerator_gain
-        self._nc = (g, g * n1, g * n2, d1, d2)
-        if self.r is not None and r['mode'] != self.r['mode']:
-            self.reset()             # a new control law starts from rest (bumpless from 0)
-        self.r = r
+    def configure(self, config: LawConfig) -> None:
+        """New registers from the next tick. The notch keeps its history (unity DC gain before
+        and after); a new mode starts its law from rest (bumpless from 0)."""
+        self.notch.configure(*config.notch)
+        if config.mode != self.config.mode:
+            self.reset()
+        self.config = config
+        self._law = PidLaw if config.pid else IpdLaw
 
     def reset(self) -> None:
         """Open loop / new mode: clear the integrators and filter history."""
@@ -93,102 +172,34 @@ class ServoLaw:
         self.co = 0.0
         self.prev_act = self.prev_act_vel = None
         self.notch.reset(0.0)
-        self._hist = (0.0, 0.0, 0.0, 0.0)
         self.output = 0.0
         self.saturated = self.integrator_held = self.anti_hunting = False
 
-    # -- notch with look-ahead ----------------------------------------------------------------
-    def _notch_peek(self, x: float) -> float:
-        """What `self.notch.step(x)` would return, without advancing it (same difference
-        equation, from the history this object fed it)."""
-        g, b1, b2, a1, a2 = self._nc
-        x1, x2, y1, y2 = self._hist
-        return g * x + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2
-
-    def _notch_step(self, x: float) -> float:
-        y = self.notch.step(x)
-        x1, _, y1, _ = self._hist
-        self._hist = (x, x1, y, y1)
-        return y
-
-    # -- the tick -----------------------------------------------------------------------------
     def update(self, dt: float, *, cmd_pos: float, cmd_vel: float, cmd_acc: float,
                act_pos: float, act_vel: float, vel_loop_vel: float, vel_loop_acc: float,
                target_stopped: bool, half_count: float) -> float:
         """One servo tick. act_pos/act_vel: the position-loop encoder; vel_loop_vel/acc: the
         velocity-loop encoder (same as act_* unless dual loop). Returns the output [V]."""
-        r = self.r
-        mode = r['mode']
-        position_mode = mode.startswith('position')
-        if position_mode:
-            raw_error = cmd_pos - act_pos
-            lim = r['position_error_limit']
-            error = _clamp(raw_error, -lim, lim) if lim > 0.0 else raw_error
+        c = self.config
+        k = self._tick
+        if c.position_mode:
+            raw = cmd_pos - act_pos
+            lim = c.position_error_limit
+            k.error = _clamp(raw, -lim, lim) if lim > 0.0 else raw      # Ixx67
+            k.meas, k.meas_rate = act_pos, vel_loop_vel
         else:
-            raw_error = error = cmd_vel - act_vel
+            raw = k.error = cmd_vel - act_vel
+            k.meas, k.meas_rate = act_vel, vel_loop_acc
+        k.raw_error = raw
+        k.cmd_vel = cmd_vel
+        k.target_stopped = target_stopped
         # RMC anti-hunting: target stopped and inside the tolerance (or half a raw count).
-        self.anti_hunting = position_mode and db.in_anti_hunting_window(
-            target_stopped, raw_error, r['deadband_tolerance'], half_count)
-        feedforward = (r['kvff'] * cmd_vel + r['kaff'] * cmd_acc
-                       + r['friction_ff'] * _sign(cmd_vel) + r['bias'])
-        limit = r['output_limit']
-        deadband, tolerance = r['output_deadband'], r['deadband_tolerance']
-
-        def finish(v):
-            """Output deadband (with ratioing) on the notch output."""
-            return db.apply_deadband(v, deadband, raw_error, tolerance, target_stopped,
-                                     position_mode)
-
-        if mode.endswith('pid'):
-            held = r['integration_mode'] == 'at_rest' and cmd_vel != 0.0
-            il = r['integration_limit']
-            i_old = _clamp(self.integral, -il, il)       # Ixx63 may have been lowered
-            i_new = i_old
-            if not held:
-                free = _clamp(i_old + r['ki'] * error * dt, -il, il)
-                i_new = free
-                if self.anti_hunting:
-                    i_new = db.limit_integral_to_wind_down(i_old, free)
-                    held = i_new != free                 # the rule stopped some growth
-            if position_mode:
-                loop = r['kp'] * error - r['kd'] * vel_loop_vel
-            else:
-                loop = r['kp'] * error - r['kd'] * vel_loop_acc
-            # No integration while the output saturates (PMAC Ixx69): test this tick's output
-            # with the integration before committing it (when there is one to test).
-            if i_new != i_old and abs(finish(self._notch_peek(loop + i_new + feedforward))) \
-                    >= limit:
-                i_new = i_old
-                held = True
-            self.integral = i_new
-            out = finish(self._notch_step(loop + i_new + feedforward))
-            self.integrator_held = held or abs(out) >= limit
-        else:
-            # I-PD, incremental: the state CO carries I, P and D together.
-            meas = act_pos if position_mode else act_vel
-            meas_rate = vel_loop_vel if position_mode else vel_loop_acc
-            if self.prev_act is None:
-                self.prev_act, self.prev_act_vel = meas, meas_rate
-            co_old = self.co
-            inc_i = r['ki'] * dt * error
-            held = False
-            if self.anti_hunting:
-                wound = db.limit_integral_to_wind_down(co_old, co_old + inc_i)
-                held = wound != co_old + inc_i
-                inc_i = wound - co_old                  # may only wind down
-            co = (co_old + inc_i - r['kp'] * (meas - self.prev_act)
-                  - r['kd'] * (meas_rate - self.prev_act_vel))
-            self.prev_act, self.prev_act_vel = meas, meas_rate
-            # Output clamp on the state (anti-windup): CO + ff + deadband within ±limit.
-            room = max(limit - deadband, 0.0)
-            hi, lo = room - feedforward, -room - feedforward
-            co_clamped = _clamp(co, lo, hi)
-            if co_clamped != co:
-                held = True
-            self.co = self.integral = co_clamped
-            self.integrator_held = held
-            out = finish(self._notch_step(self.co + feedforward))
-
+        k.anti_hunting = self.anti_hunting = c.position_mode and db.in_anti_hunting_window(
+            target_stopped, raw, c.deadband_tolerance, half_count)
+        k.feedforward = (c.kvff * cmd_vel + c.kaff * cmd_acc + c.friction_ff * _sign(cmd_vel)
+                         + c.bias)
+        out = self._law.update(self, k, dt)
+        limit = c.output_limit
         self.saturated = abs(out) >= limit
         out = _clamp(out, -limit, limit)
         self.output = out
