@@ -1,4 +1,5 @@
 """The register table drives the YAML files, the README tables and validation (one place)."""
+import dataclasses
 import math
 import pathlib
 
@@ -99,3 +100,34 @@ def test_values_typed_as_declared(name, value, typed):
 def test_other_types_are_left_to_be_refused(name, value):
     """Integer spellings stay refused for doubles (2 is not 2.0); nothing else is guessed."""
     assert R.CONTROLLER_AXIS[name].as_declared(value) == value
+
+
+def test_core_objects_start_with_the_tables_defaults():
+    """No default lives outside the register table: each core object built without arguments
+    runs the table's values (issue 13; Settling once had its own tolerances, the sampled
+    correction 20 moves against the table's 200)."""
+    from motion_ctrl.core.axis import Axis
+    from motion_ctrl.core.dual_loop import SampledCorrection
+    from motion_ctrl.core.registers import (CONTROLLER_AXIS, CorrectionConfig, LawConfig,
+                                            SettlingConfig)
+    from motion_ctrl.core.servo_law import ServoLaw
+    from motion_ctrl.core.settling import Settling
+
+    def table(name):
+        return CONTROLLER_AXIS[name].default
+
+    s = Settling()
+    assert (s.fine_tolerance, s.coarse_tolerance, s.velocity_tolerance, s.settling_time) == (
+        table('fine_position_tolerance'), table('coarse_position_tolerance'),
+        table('velocity_tolerance'), table('settling_time'))
+    c = SampledCorrection()
+    assert c.max_moves == table('correction_max_moves') == 200
+    assert c.tolerance_counts == round(table('correction_tolerance')
+                                       * table('load_counts_per_m')) == 1
+    assert ServoLaw().config == LawConfig.of(R.axis_defaults())
+    axis = Axis('x')
+    assert axis.r == R.axis_defaults()
+    for cfg in (LawConfig, SettlingConfig, CorrectionConfig):
+        for f in dataclasses.fields(cfg):
+            assert not f.init or f.name in CONTROLLER_AXIS, f'{cfg.__name__}.{f.name}'
+            assert f.default is dataclasses.MISSING, f'{cfg.__name__}.{f.name} has a default'

@@ -3,7 +3,7 @@ watchdog, the loop-closing gate, scheduled targets and register sets applied tog
 import pytest
 
 from motion_ctrl.core.axis import Axis
-from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.core.registers import AXIS_REGISTERS, CorrectionConfig, axis_defaults
 from motion_ctrl.core.servo_loop import STREAM_SETTLE, ServoLoop
 from msg_defs.status import Status as S
 
@@ -107,8 +107,9 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     corrections end instead of driving the slide away (correction_max_moves is 200), and the
     loop says so once."""
     from motion_ctrl.core.dual_loop import SampledCorrection
-    c = SampledCorrection()
-    c.configure(2 * 2.54e-6, 200, 1 / 2.54e-6, 0.02)
+    c = SampledCorrection(CorrectionConfig.of(dict(
+        correction_tolerance=2 * 2.54e-6, correction_max_moves=200,
+        load_counts_per_m=1 / 2.54e-6, settling_time=0.02)))
     c.start_now()
 
     def settled(error_counts):

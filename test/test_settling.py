@@ -8,6 +8,7 @@ import math
 
 import pytest
 
+from motion_ctrl.core.registers import SettlingConfig
 from motion_ctrl.core.settling import MOTION_BITS, TIME_EPSILON, Settling
 from msg_defs.status import Status
 
@@ -20,10 +21,13 @@ TARGET = 0.001
 S = Status
 
 
+def config(fine, coarse, vel, st) -> SettlingConfig:
+    return SettlingConfig.of(dict(fine_position_tolerance=fine, coarse_position_tolerance=coarse,
+                                  velocity_tolerance=vel, settling_time=st))
+
+
 def make(coarse=5e-6, fine=FINE, vel=VEL_TOL, st=ST):
-    s = Settling()
-    s.configure(fine, coarse, vel, st)
-    return s
+    return Settling(config(fine, coarse, vel, st))
 
 
 def run(s, rows):
@@ -316,24 +320,26 @@ def test_retarget_on_the_fly():
 
 
 # 7. ------------------------------------------------------------------ configuration
+# The criteria come validated from the register table (SettlingConfig.of): a bad one is refused
+# naming its register, before the Settling it was meant for changes.
 @pytest.mark.parametrize('args, name', [
-    ((2e-6, 1e-6, 1e-3, 0.01), 'coarse_tolerance'),
-    ((-1e-6, 5e-6, 1e-3, 0.01), 'fine_tolerance'),
-    ((2e-6, -5e-6, 1e-3, 0.01), 'coarse_tolerance'),
+    ((2e-6, 1e-6, 1e-3, 0.01), 'coarse_position_tolerance must be >= fine'),
+    ((-1e-6, 5e-6, 1e-3, 0.01), 'fine_position_tolerance'),
+    ((2e-6, -5e-6, 1e-3, 0.01), 'coarse_position_tolerance'),
     ((2e-6, 5e-6, -1e-3, 0.01), 'velocity_tolerance'),
     ((2e-6, 5e-6, 1e-3, -0.01), 'settling_time'),
-    ((math.nan, 5e-6, 1e-3, 0.01), 'fine_tolerance'),
-    ((2e-6, math.nan, 1e-3, 0.01), 'coarse_tolerance'),
+    ((math.nan, 5e-6, 1e-3, 0.01), 'fine_position_tolerance'),
+    ((2e-6, math.nan, 1e-3, 0.01), 'coarse_position_tolerance'),
     ((2e-6, 5e-6, math.nan, 0.01), 'velocity_tolerance'),
     ((2e-6, 5e-6, 1e-3, math.nan), 'settling_time'),
-    ((2e-6, math.inf, 1e-3, 0.01), 'coarse_tolerance'),
+    ((2e-6, math.inf, 1e-3, 0.01), 'coarse_position_tolerance'),
     ((2e-6, 5e-6, '1e-3', 0.01), 'velocity_tolerance'),
 ])
 def test_bad_configuration_refused(args, name):
     s = make(coarse=5e-6)
     before = (s.fine_tolerance, s.coarse_tolerance, s.velocity_tolerance, s.settling_time)
     with pytest.raises(ValueError, match=name):
-        s.configure(*args)
+        s.configure(config(*args))
     assert (s.fine_tolerance, s.coarse_tolerance, s.velocity_tolerance,
             s.settling_time) == before
     s.start_position_move(TARGET)                           # still behaves as configured
@@ -341,7 +347,6 @@ def test_bad_configuration_refused(args, name):
 
 
 def test_coarse_equal_fine_accepted():
-    s = Settling()
-    s.configure(1e-6, 1e-6, 0.0, 0.0)
+    s = Settling(config(1e-6, 1e-6, 0.0, 0.0))
     assert (s.fine_tolerance, s.coarse_tolerance, s.velocity_tolerance,
             s.settling_time) == (1e-6, 1e-6, 0.0, 0.0)

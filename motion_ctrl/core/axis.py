@@ -68,8 +68,8 @@ from motion_ctrl.core.backlash import BacklashCompensation
 from motion_ctrl.core.dual_loop import SampledCorrection, feedback_encoders
 from motion_ctrl.core.gather import Gather
 from motion_ctrl.core.profile import Profile
-from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, LawConfig, axis_defaults,
-                                        consistency)
+from motion_ctrl.core.registers import (AXIS_REGISTERS, CorrectionConfig, LawConfig,
+                                        SettlingConfig, axis_defaults, refusals)
 from motion_ctrl.core.servo_law import ServoLaw
 from motion_ctrl.core.settling import Settling, status_word
 
@@ -171,12 +171,7 @@ class Axis:
     # -- configuration --------------------------------------------------------------------------
     def configure(self, values: dict) -> None:
         """Apply a complete, validated register set at a tick boundary (all or nothing)."""
-        for name, value in values.items():
-            reason = CONTROLLER_AXIS[name].check(value) if name in CONTROLLER_AXIS else \
-                f'unknown register {name!r}'
-            if reason:
-                raise ValueError(f'{self.name}.{reason}')
-        reasons = consistency(values)
+        reasons = refusals(values)
         if reasons:
             raise ValueError('; '.join(f'{self.name}.{r}' for r in reasons))
         r = dict(values)
@@ -184,14 +179,12 @@ class Axis:
         # Every module validates its own inputs before anything is replaced.
         self.profile.configure(r['max_velocity'], r['max_acceleration'], r['max_jerk'],
                                r['smoothing'], T)
-        self.settling.configure(r['fine_position_tolerance'], r['coarse_position_tolerance'],
-                                r['velocity_tolerance'], r['settling_time'])
+        self.settling.configure(SettlingConfig.of(r))
         self.backlash.configure(r['backlash_distance'], r['backlash_takeup_rate'],
                                 r['backlash_hysteresis'], r['backlash_table'],
                                 r['backlash_table_spacing'], r['leadscrew_table'],
                                 r['leadscrew_table_spacing'])
-        self.sampled.configure(r['correction_tolerance'], r['correction_max_moves'],
-                               r['load_counts_per_m'], r['settling_time'])
+        self.sampled.configure(CorrectionConfig.of(r))
         old = self.r
         self.servo.configure(LawConfig.of(r))
         self.r = r

@@ -23,6 +23,8 @@
 """
 from __future__ import annotations
 
+from motion_ctrl.core.registers import CorrectionConfig, defaults
+
 
 def feedback_encoders(feedback: str) -> tuple[str, str]:
     """(position-loop encoder, velocity-loop encoder) for a `feedback` register value."""
@@ -40,7 +42,7 @@ class SampledCorrection:
 
     IDLE, MOVING, CORRECTING, DONE = 'idle', 'moving', 'correcting', 'done'
 
-    def __init__(self):
+    def __init__(self, config: CorrectionConfig | None = None):
         self.phase = self.IDLE
         self.moves = 0
         self.exhausted = False        # ended by correction_max_moves, not by the tolerance
@@ -48,20 +50,21 @@ class SampledCorrection:
         # correction was for (counts then, now), not by the tolerance.
         self.diverged: tuple[int, int] | None = None
         self._first_error: int | None = None
-        self._still_ref = None
+        self._still_ref: int | None = None
         self._still_time = 0.0
-        self._load_ref = None
+        self._load_ref: int | None = None
         self._load_still = 0.0
         self.tolerance_counts = 1
-        self.max_moves = 20
-        self.settle_time = 0.02
+        self.max_moves = 0
+        self.settle_time = 0.0
+        self.configure(config or defaults(CorrectionConfig))
 
-    def configure(self, tolerance: float, max_moves: int, load_counts_per_m: float,
-                  settle_time: float) -> None:
+    def configure(self, config: CorrectionConfig) -> None:
         # Compare in whole counts, as Galil does: the encoder error is an integer.
-        self.tolerance_counts = max(1, round(tolerance * load_counts_per_m))
-        self.max_moves = max_moves
-        self.settle_time = settle_time
+        self.tolerance_counts = max(1, round(config.correction_tolerance
+                                             * config.load_counts_per_m))
+        self.max_moves = config.correction_max_moves
+        self.settle_time = config.settling_time
 
     def start(self) -> None:
         """A new move began: its end will be followed by corrections."""

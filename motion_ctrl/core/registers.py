@@ -279,30 +279,50 @@ def axis_defaults(table=AXIS_REGISTERS) -> dict:
             for r in table}
 
 
-def consistency(v: dict) -> list[str]:
-    """Cross-register rules on a complete set of one axis' values; reasons name the registers."""
-    reasons = []
-    if v['coarse_position_tolerance'] < v['fine_position_tolerance']:
-        reasons.append('coarse_position_tolerance must be >= fine_position_tolerance '
-                       f'({v["coarse_position_tolerance"]:g} < {v["fine_position_tolerance"]:g})')
-    if not v['soft_limit_min'] < v['soft_limit_max']:
-        reasons.append('soft_limit_min must be < soft_limit_max '
-                       f'({v["soft_limit_min"]:g} >= {v["soft_limit_max"]:g})')
-    for table in ('backlash_table', 'leadscrew_table'):
-        if len(v[table]) and not v[f'{table}_spacing'] > 0:
-            reasons.append(f'{table}_spacing must be > 0 while {table} is set (set the '
-                           'spacing before the table; clear the table with [] before or with '
-                           'the spacing)')
-    w, f = v['following_error_warning'], v['following_error_fatal']
-    if w > 0 and f > 0 and w > f:
-        reasons.append(f'following_error_warning must be <= following_error_fatal ({w:g} > {f:g})')
+def _notch_rule(v: dict) -> str | None:
     # local: the notch module owns what a valid filter is
     from motion_ctrl.core.notch import Biquad
     try:
-        Biquad().configure(v['notch_n1'], v['notch_n2'], v['notch_d1'], v['notch_d2'])
+        Biquad.validate(v['notch_n1'], v['notch_n2'], v['notch_d1'], v['notch_d2'])
     except ValueError as e:
-        reasons.append(f'notch_n1..notch_d2: {e}')
-    return reasons
+        return f'notch_n1..notch_d2: {e}'
+    return None
+
+
+def _table_rule(table: str):
+    def rule(v: dict) -> str | None:
+        if len(v[table]) and not v[f'{table}_spacing'] > 0:
+            return (f'{table}_spacing must be > 0 while {table} is set (set the spacing before '
+                    'the table; clear the table with [] before or with the spacing)')
+        return None
+    return rule
+
+
+# Cross-register rules of one axis: (the registers a rule reads, rule -> reason or None).
+AXIS_RULES = (
+    (('fine_position_tolerance', 'coarse_position_tolerance'), lambda v: None
+     if v['coarse_position_tolerance'] >= v['fine_position_tolerance'] else
+     'coarse_position_tolerance must be >= fine_position_tolerance '
+     f'({v["coarse_position_tolerance"]:g} < {v["fine_position_tolerance"]:g})'),
+    (('soft_limit_min', 'soft_limit_max'), lambda v: None
+     if v['soft_limit_min'] < v['soft_limit_max'] else
+     f'soft_limit_min must be < soft_limit_max ({v["soft_limit_min"]:g} >= '
+     f'{v["soft_limit_max"]:g})'),
+    (('backlash_table', 'backlash_table_spacing'), _table_rule('backlash_table')),
+    (('leadscrew_table', 'leadscrew_table_spacing'), _table_rule('leadscrew_table')),
+    (('following_error_warning', 'following_error_fatal'), lambda v: None
+     if not (0 < v['following_error_fatal'] < v['following_error_warning']) else
+     'following_error_warning must be <= following_error_fatal '
+     f'({v["following_error_warning"]:g} > {v["following_error_fatal"]:g})'),
+    (('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2'), _notch_rule),
+)
+
+
+def consistency(v: dict) -> list[str]:
+    """Cross-register rules on one axis' values; reasons name the registers. A rule applies
+    when all the registers it reads are among `v` (a consumer's part, or the whole set)."""
+    reasons = (rule(v) for names, rule in AXIS_RULES if all(n in v for n in names))
+    return [r for r in reasons if r]
 
 
 def refusals(values: dict, table: dict | None = None, rules=None) -> list[str]:
@@ -321,7 +341,13 @@ def refusals(values: dict, table: dict | None = None, rules=None) -> list[str]:
 # derived fields are computed once here so that a servo tick compares no strings and looks up
 # no keys.
 def _of(cls, values: dict):
-    return cls(**{f.name: values[f.name] for f in fields(cls) if f.init})
+    """`cls` from the registers among `values` that it reads, refused (ValueError naming them)
+    by the table's one validation: each value by its row, then the rules among them."""
+    picked = {f.name: values[f.name] for f in fields(cls) if f.init}
+    reasons = refusals(picked)
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in picked.items()})
 
 
 @dataclass(frozen=True, slots=True)
@@ -362,6 +388,38 @@ class LawConfig:
     @property
     def notch(self) -> tuple[float, float, float, float]:
         return (self.notch_n1, self.notch_n2, self.notch_d1, self.notch_d2)
+
+
+@dataclass(frozen=True, slots=True)
+class SettlingConfig:
+    """The settling criteria (RMP PositionToleranceFine/Coarse, VelocityTolerance,
+    SettlingTime)."""
+    fine_position_tolerance: float
+    coarse_position_tolerance: float
+    velocity_tolerance: float
+    settling_time: float
+
+    @classmethod
+    def of(cls, values: dict) -> SettlingConfig:
+        return _of(cls, values)
+
+
+@dataclass(frozen=True, slots=True)
+class CorrectionConfig:
+    """Galil's sampled dual loop: when the correction moves end."""
+    correction_tolerance: float
+    correction_max_moves: int
+    load_counts_per_m: float
+    settling_time: float
+
+    @classmethod
+    def of(cls, values: dict) -> CorrectionConfig:
+        return _of(cls, values)
+
+
+def defaults(cls):
+    """`cls` (a configuration above) with the table's defaults."""
+    return cls.of(axis_defaults(AXIS_REGISTERS))
 
 
 # Plant parameters (per axis `<axis>.<name>` on the plant node): the Galil backlash slide.

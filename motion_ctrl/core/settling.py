@@ -57,6 +57,8 @@ import numbers
 
 from msg_defs.status import Status
 
+from motion_ctrl.core.registers import SettlingConfig, defaults
+
 __all__ = ['Settling', 'TIME_EPSILON', 'MOTION_BITS', 'STOP_KINDS', 'status_word']
 
 #: Tolerance [s] for "held for settling_time" comparisons of accumulated dt.
@@ -138,13 +140,12 @@ class Settling:
         target_velocity  target velocity [m/s] of the velocity move (None otherwise)
     """
 
-    def __init__(self, fine_tolerance=2.54e-6, coarse_tolerance=25.4e-6,
-                 velocity_tolerance=1e-3, settling_time=0.01):
+    def __init__(self, config: SettlingConfig | None = None):
         self.fine_tolerance = 0.0
         self.coarse_tolerance = 0.0
         self.velocity_tolerance = 0.0
         self.settling_time = 0.0
-        self.configure(fine_tolerance, coarse_tolerance, velocity_tolerance, settling_time)
+        self.configure(config or defaults(SettlingConfig))
         self.clock = 0.0
         self._bits = 0            # last motion word, plain int (``bits`` gives the Status)
         self.settle_start = None
@@ -155,25 +156,15 @@ class Settling:
         self.target_velocity = None
 
     # ------------------------------------------------------------------ configuration
-    def configure(self, fine_tolerance, coarse_tolerance, velocity_tolerance, settling_time):
-        """Set the settling criteria (m, m, m/s, s).
-
-        All must be finite and >= 0, and coarse >= fine (seed 004: the coarse tolerance
-        "should be greater than or equal to the fine position tolerance"); otherwise ValueError
-        naming the problem is raised and nothing changes.  A tolerance of 0 does not disable its
-        criterion.  New values apply from the next ``update()``; a running settling timer keeps
-        its held time and is judged against the new values.
-        """
-        fine = _non_negative('fine_tolerance', fine_tolerance)
-        coarse = _non_negative('coarse_tolerance', coarse_tolerance)
-        vel = _non_negative('velocity_tolerance', velocity_tolerance)
-        st = _non_negative('settling_time', settling_time)
-        if coarse < fine:
-            raise ValueError(f'coarse_tolerance ({coarse!r}) must be >= fine_tolerance ({fine!r})')
-        self.fine_tolerance = fine
-        self.coarse_tolerance = coarse
-        self.velocity_tolerance = vel
-        self.settling_time = st
+    def configure(self, config: SettlingConfig) -> None:
+        """Set the settling criteria (m, m, m/s, s), validated by the register table. A
+        tolerance of 0 does not disable its criterion. New values apply from the next
+        ``update()``; a running settling timer keeps its held time and is judged against the
+        new values."""
+        self.fine_tolerance = config.fine_position_tolerance
+        self.coarse_tolerance = config.coarse_position_tolerance
+        self.velocity_tolerance = config.velocity_tolerance
+        self.settling_time = config.settling_time
 
     @property
     def bits(self) -> Status:

@@ -35,7 +35,7 @@ def _pct(values, q):
 def bench_core(n: int = 20000) -> list[tuple[str, float]]:
     from motion_ctrl.core.axis import Axis
     from motion_ctrl.core.profile import Profile
-    from motion_ctrl.core.registers import axis_defaults
+    from motion_ctrl.core.registers import SettlingConfig, axis_defaults
     from motion_ctrl.core.settling import Settling
     r = axis_defaults()
     rows = []
@@ -48,9 +48,7 @@ def bench_core(n: int = 20000) -> list[tuple[str, float]]:
 
     p = Profile(0.0)
     p.configure(r['max_velocity'], r['max_acceleration'], 20.0, 0.1, 1e-3)
-    s = Settling()
-    s.configure(r['fine_position_tolerance'], r['coarse_position_tolerance'],
-                r['velocity_tolerance'], r['settling_time'])
+    s = Settling(SettlingConfig.of(r))
 
     def profile_settling(i):
         if i % 1000 == 0:                     # a new 1-inch move every second, both ways
