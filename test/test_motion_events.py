@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from msg_defs.status import Status
-from motion_ctrl.core.axis import stopping_distance
+from motion_ctrl.core.soft_limits import stopping_distance
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.profile import Profile
 from motion_ctrl.core.registers import INCH, axis_defaults

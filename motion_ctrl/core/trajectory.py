@@ -70,7 +70,7 @@ START_TOLERANCE = 1e-9
 # The last point's velocity (m/s) and acceleration (m/s²) count as 0 within this; the hold
 # after the end is then exactly 0.
 REST_TOLERANCE = 1e-9
-# Soft limits: absolute, m (as Axis' _LIMIT_EPS). max_velocity / max_acceleration: relative, so
+# Soft limits: absolute, m (as core.soft_limits.EPS). max_velocity / max_acceleration: relative, so
 # a trajectory planned exactly at a limit is not refused for the rounding of its polynomials.
 LIMIT_TOLERANCE = 1e-9
 

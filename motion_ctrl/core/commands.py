@@ -1,0 +1,427 @@
+"""The commands of one servo axis and their rules (PMAC / Galil / RMP), as methods of
+`Axis` (motion_ctrl.core.axis). Each returns (accepted, reason): a refused one changes nothing
+but the LIMIT bit where SPEC.md says so.
+
+Commands (`move_to`, `jog`, `stop`, ...) return (accepted, reason): a refused one changes nothing
+but the LIMIT bit where SPEC.md says so. The axis starts with the loop closed at the position the
+encoders report on the first tick (PMAC Ixx80 = 1, power-on enable).
+
+Motion commands and the status word (RMP semantics, see motion_ctrl.core.settling):
+
+* `move_to(target)`: point-to-point move; during a move it re-plans on the fly from the present
+  commanded position, velocity and acceleration (no step in any of them).
+* `jog(velocity)`: velocity move, |velocity| <= max_velocity (above it refused); 0 decelerates to
+  rest (MOTION_DONE).
+* `stop()` / `stop('estop')`: decelerate at stop_deceleration / estop_deceleration; STOPPED /
+  ESTOPPED + MOTION_DONE at rest. `abort()`: loop open at once, output 0 from this very moment,
+  ENABLED cleared, ABORTED + MOTION_DONE.
+* `enable(False)` opens the loop (output 0, MOTION_DONE: nothing is being moved); `enable(True)`
+  closes it at the present position; `reset()` clears FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT and
+  LIMIT, and on an open loop ABORTED; the loop stays open until `enable(True)`.
+
+Soft limits (soft_limit_min / soft_limit_max, on the commanded position in the user's frame):
+
+* a target outside them is refused with a reason and the LIMIT bit; the axis is not disturbed
+  (a move in progress continues to its old target);
+* a jog never commands a position past them: while the profile moves toward a limit, each tick
+  compares the distance left with the distance needed to stop at max_acceleration (jerk-limited
+  if max_jerk > 0); when they meet, the jog becomes a position move to the limit, cruising no
+  faster than the jog and braking at max_acceleration, so the command stops exactly at the
+  limit (LIMIT raised, then AT_TARGET / IN_FINE_POSITION / MOTION_DONE at the limit as for any
+  position move). A jog toward a limit the command already sits on is refused (LIMIT);
+* a STOP / ESTOP or jog-to-zero whose deceleration would carry the command past a limit brakes
+  to the limit instead (at estop_deceleration if that is what it takes; LIMIT raised).
+  Should even estop_deceleration not suffice (limits changed under a moving axis), the command
+  passes the limit and comes back to it.
+
+Command precedence (RMP: an E-stop is not undone by a lesser stop): ABORT > ESTOP > STOP > a
+move or jog. While a STOP or ESTOP decelerates the axis, a command of a lower level is refused
+with the reason (a STOP during an ESTOP, a target or jog during either); a higher one takes over.
+STOP, ESTOP, ABORT, disable and a fault cancel what was scheduled for later: they advance
+`command_epoch` and say why in `cancelled_by` (the controller node drops scheduled targets of an
+older epoch).
+
+Live register changes that bear on a move in progress (`live_change_refusal`): a feedback change,
+and soft limits that the planned travel would cross, are refused while the axis moves (stop
+first); at rest they apply.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+from msg_defs.status import Status
+from motion_ctrl.core import soft_limits as limits
+from motion_ctrl.core.dual_loop import SampledCorrection
+from motion_ctrl.core.gather import Gather
+from motion_ctrl.core.profile import Profile
+from motion_ctrl.core.settling import Settling
+
+_DONE = int(Status.MOTION_DONE)
+_LIMIT = int(Status.LIMIT)
+# Stop levels of the command precedence (a move or jog is 0, ABORT opens the loop).
+_STOP_LEVEL = {'stop': 1, 'estop': 2}
+
+
+def _number(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+class AxisCommands:
+    """Motion commands, refusals and command precedence of an Axis (mixed into it: they act on
+    its profile, settling, sampled correction and status)."""
+
+    # The Axis state the commands act on (set by Axis.__init__ / configure).
+    name: str
+    servo_period: float
+    r: dict
+    profile: Profile
+    settling: Settling
+    sampled: SampledCorrection
+    gather: Gather | None
+    enabled: bool
+    homed: bool
+    status: Status
+    target: float | None
+    sampled_offset: float
+    load_pos: float
+    command_epoch: int
+    cancelled_by: str
+    _faults: int
+    _sticky: int
+    _stopping: int
+    _guard: int
+    _motor_side: bool
+    _sampled_fb: bool
+    _soft_lo: float
+    _soft_hi: float
+    _max_vel: float
+    _max_acc: float
+    _max_jerk: float
+    _stop_dec: float
+    _estop_dec: float
+
+    # ... and what it provides them
+    @property
+    def faults(self) -> Status:
+        raise NotImplementedError
+
+    @property
+    def command_position(self) -> float:
+        raise NotImplementedError
+
+    def _open_loop(self) -> None:
+        raise NotImplementedError
+
+    def _recompose(self) -> None:
+        raise NotImplementedError
+
+    def _rehome_command(self) -> None:
+        raise NotImplementedError
+
+    def _refuse_unless_ready(self):
+        if self._faults:
+            return f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset'
+        if not self.enabled:
+            return f'{self.name}: not enabled'
+        return None
+
+    def _refuse_limit(self, reason):
+        """A soft-limit refusal: LIMIT is raised (and shown at once), nothing else changes."""
+        self._sticky |= _LIMIT
+        self._recompose()
+        return False, f'{self.name}: {reason}'
+
+    @property
+    def stopping(self) -> int:
+        """Level of the STOP (1) or ESTOP (2) still decelerating the axis; 0 when none is."""
+        if self._stopping and not (self.enabled and self.profile.moving):
+            self._stopping = 0
+        return self._stopping
+
+    def _refuse_below_stop(self, what: str):
+        level = self.stopping
+        if level:
+            kind = 'ESTOP' if level == 2 else 'STOP'
+            return f'{self.name}: {what} refused: a {kind} is in progress (wait for MOTION_DONE)'
+        return None
+
+    def start_refusal(self, what: str):
+        """Why a new motion (`what`: 'target', 'jog', 'trajectory') cannot start now, or None:
+        a fault, an open loop, a STOP or ESTOP still decelerating."""
+        return self._refuse_unless_ready() or self._refuse_below_stop(what)
+
+    def _cancel(self, why: str) -> None:
+        """What was scheduled for later is void (see the module docstring); a test signal
+        running ends."""
+        self.command_epoch += 1
+        self.cancelled_by = why
+        if self.gather is not None:
+            self.gather.end(why)
+
+    def excite(self, excitation, budget: float):
+        """Add `excitation` (motion_ctrl.core.excitation, one value per servo tick) to the servo
+        output from the next tick on, recording every tick (motion_ctrl.core.gather, PMAC's gather).
+        Only enabled and at rest; `budget` [m] of slide travel around here ends it early."""
+        reason = self.start_refusal('excitation')
+        if reason:
+            return False, reason
+        if self.profile.moving or not self.status & _DONE:
+            return False, f'{self.name}: excitation refused: the axis moves (wait for MOTION_DONE)'
+        if not (_number(budget) and math.isfinite(budget) and budget > 0.0):
+            return False, f'{self.name}: excitation travel budget {budget!r} m must be > 0'
+        rate = 1.0 / self.servo_period
+        if abs(excitation.sample_rate - rate) > 1e-9 * rate:
+            return False, (f'{self.name}: excitation at {excitation.sample_rate:g} Hz, the servo '
+                           f'loop runs at {rate:g} Hz')
+        self.gather = Gather(excitation, budget, self.load_pos, self.r['output_limit'])
+        return True, ''
+
+    def live_change_refusal(self, changes: dict):
+        """Why register `changes` cannot apply to the move in progress, or None: a feedback
+        change (it re-homes the command and would drop the move), and soft limits that the
+        planned travel crosses, are refused while the axis moves. (A jog's travel is its
+        present segment: a limit ahead of it is watched each tick and braked onto.)"""
+        if not (self.enabled and self.profile.moving):
+            return None
+        fb = changes.get('feedback', self.r['feedback'])
+        if fb != self.r['feedback']:
+            return (f'{self.name}.feedback: {fb} refused while the axis moves (a feedback change '
+                    're-homes the command); stop first or wait for MOTION_DONE')
+        lo = changes['soft_limit_min'] if 'soft_limit_min' in changes else self._soft_lo
+        hi = changes['soft_limit_max'] if 'soft_limit_max' in changes else self._soft_hi
+        if (lo, hi) == (self._soft_lo, self._soft_hi):
+            return None
+        a, b = self.profile.raw_extrema()
+        off = self.sampled_offset
+        a, b = a - off, b - off
+        if b > hi + limits.EPS:
+            return (f'{self.name}.soft_limit_max: {hi:g} m refused while the axis moves: its '
+                    f'move reaches {b:g} m; stop first or wait for MOTION_DONE')
+        if a < lo - limits.EPS:
+            return (f'{self.name}.soft_limit_min: {lo:g} m refused while the axis moves: its '
+                    f'move reaches {a:g} m; stop first or wait for MOTION_DONE')
+        return None
+
+    def move_to(self, target: float):
+        if not _number(target) or not math.isfinite(target):
+            return False, f'{self.name}: target {target!r} is not a finite number'
+        lo, hi = self._soft_lo, self._soft_hi
+        if not lo <= target <= hi:
+            return self._refuse_limit(f'target {target:g} m outside the soft limits '
+                                      f'[{lo:g}, {hi:g}]')
+        reason = self._refuse_unless_ready() or self._refuse_below_stop('target')
+        if reason:
+            return False, reason
+        try:
+            self._start_move(float(target))
+        except ValueError as e:      # ruckig could not plan it; the previous move goes on
+            return False, f'{self.name}: {e}'
+        self._sticky &= ~_LIMIT
+        return True, ''
+
+    def _start_move(self, target: float, max_velocity=None, max_acceleration=None) -> None:
+        """Plan the profile to `target` (user frame) and start its settling (and the sampled
+        corrections); raises ValueError, changing nothing, if the profile refuses."""
+        loop_target = target + self.sampled_offset
+        self.profile.move_to(loop_target, max_velocity, max_acceleration)
+        if self.gather is not None:
+            self.gather.end('a new move')
+        self.target = target
+        self._guard = 0
+        self.settling.start_position_move(loop_target)
+        self._start_corrections()
+
+    @property
+    def path_state(self) -> tuple[float, float, float]:
+        """(position, velocity, acceleration) of the unsmoothed command, user frame: where a
+        trajectory starting now starts (its implicit first point)."""
+        p = self.profile
+        return p.raw_position - self.sampled_offset, p.raw_velocity, p.raw_acceleration
+
+    def follow(self, path):
+        """Follow this axis's share of a multi-axis trajectory (PMAC PVT; `Profile.follow`),
+        in the user frame. The trajectory was checked as a whole (motion_ctrl.core.trajectory); the
+        soft limits are checked here again, as for any target. Settling, corrections, stops and
+        faults treat it as a move to its last point."""
+        reason = self.start_refusal('trajectory')
+        if reason:
+            return False, reason
+        lo, hi = path.extrema
+        if lo < self._soft_lo - limits.EPS or hi > self._soft_hi + limits.EPS:
+            return self._refuse_limit(f'trajectory reaches [{lo:g}, {hi:g}] m, outside the soft '
+                                      f'limits [{self._soft_lo:g}, {self._soft_hi:g}]')
+        off = self.sampled_offset
+        try:
+            self.profile.follow(path, off)
+        except ValueError as e:
+            return False, f'{self.name}: {e}'
+        self.target = float(path.end)
+        self._guard = 0
+        if self.gather is not None:
+            self.gather.end('a trajectory')
+        self.settling.start_position_move(self.target + off)
+        self._start_corrections()
+        self._sticky &= ~_LIMIT
+        return True, ''
+
+    def jog(self, velocity: float):
+        if not _number(velocity) or not math.isfinite(velocity):
+            return False, f'{self.name}: velocity {velocity!r} is not a finite number'
+        reason = self._refuse_unless_ready() or self._refuse_below_stop('jog')
+        if reason:
+            return False, reason
+        velocity = float(velocity)
+        if abs(velocity) > self._max_vel:
+            # Galil refuses an out-of-range SP; a silent clamp (PMAC Ixx16) hid the mistake.
+            return False, (f'{self.name}: jog at {velocity:g} m/s refused: above max_velocity '
+                           f'{self._max_vel:g} m/s')
+        p = self.profile
+        off = self.sampled_offset
+        if velocity > 0.0 and p.raw_position >= self._soft_hi + off:
+            return self._refuse_limit(f'jog at {velocity:g} m/s refused: the command is at the '
+                                      f'soft limit {self._soft_hi:g} m')
+        if velocity < 0.0 and p.raw_position <= self._soft_lo + off:
+            return self._refuse_limit(f'jog at {velocity:g} m/s refused: the command is at the '
+                                      f'soft limit {self._soft_lo:g} m')
+        try:
+            p.jog(velocity)
+        except ValueError as e:
+            return False, f'{self.name}: {e}'
+        self.target = None
+        self.sampled.cancel()
+        # Settle against the velocity the profile runs.
+        self.settling.start_velocity_move(p.target_velocity)
+        self._sticky &= ~_LIMIT
+        if self.gather is not None:
+            self.gather.end('a jog')
+        self._guard = (velocity > 0.0) - (velocity < 0.0)
+        if not self._brake_within_limits(self._max_acc, stop_kind=None) and self._guard:
+            self._guard_tick(self.servo_period)
+        return True, ''
+
+    def stop(self, kind: str = 'stop'):
+        if kind not in ('stop', 'estop'):
+            return False, f"{self.name}: stop kind must be 'stop' or 'estop', got {kind!r}"
+        reason = self._refuse_unless_ready()
+        if reason:
+            return False, reason
+        level = _STOP_LEVEL[kind]
+        if self.stopping > level:
+            return False, f'{self.name}: an ESTOP is in progress; a STOP does not lower it'
+        decel = self._stop_dec if kind == 'stop' else self._estop_dec
+        try:
+            self.profile.stop(decel)
+        except ValueError as e:
+            return False, f'{self.name}: {e}'
+        self.sampled.cancel()
+        self.target = None           # abandoned: a later `correct` holds where it stopped
+        self._guard = 0
+        self.settling.start_stop(kind)
+        self._brake_within_limits(decel, stop_kind=kind)
+        self._stopping = level
+        self._cancel(kind.upper())
+        return True, ''
+
+    def abort(self):
+        """Open the loop at once, output 0 (RMP ABORT)."""
+        self._open_loop()
+        self._cancel('ABORT')
+        self.settling.abort()
+        self._recompose()
+        return True, ''
+
+    def enable(self, on: bool):
+        if not on:
+            self._open_loop()
+            self._cancel('disable')
+            self.settling.idle()
+            self._recompose()
+            return True, ''
+        if self._faults:
+            return False, f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset first'
+        if not self.homed:
+            return False, f'{self.name}: no encoder feedback yet'
+        if not self.enabled:
+            self.enabled = True
+            self._rehome_command()
+        return True, ''
+
+    def reset(self):
+        """Clear faults (fatal following error, feedback fault) and LIMIT; on an open loop also
+        ABORTED / STOPPED / ESTOPPED. The loop stays open (enable closes it); a closed loop and
+        its motion are not touched. A feedback fault whose cause persists comes back at the
+        next tick."""
+        self._faults = 0
+        self._sticky = 0
+        if not self.enabled:
+            self.settling.idle()
+        self._recompose()
+        return True, ''
+
+    def correct(self):
+        """Run the sampled dual-loop correction now (Galil #CORRECT): with feedback sampled, or
+        once on demand with feedback motor. A loop closed on the load encoder (load, dual) has
+        nothing to correct: refused."""
+        reason = self._refuse_unless_ready()
+        if reason:
+            return False, reason
+        if not self._motor_side:
+            return False, (f'{self.name}: feedback {self.r["feedback"]} closes the position '
+                           'loop on the load encoder: nothing to correct')
+        if self.profile.moving:          # incl. a jog cruising at constant velocity
+            return False, f'{self.name}: a move is in progress'
+        if self.target is None:
+            self.target = self.command_position
+        self.sampled.start_now()
+        self.settling.start_position_move(self.target + self.sampled_offset)
+        return True, ''
+
+
+    # -- soft limits for jogs and stops (planned by core.soft_limits) -------------------------
+    def _limits(self) -> tuple[float, float]:
+        """The soft limits in the profile's (loop) frame."""
+        off = self.sampled_offset
+        return self._soft_lo + off, self._soft_hi + off
+
+    def _brake_within_limits(self, decel: float, stop_kind) -> bool:
+        """After a jog / stop plan: if the planned velocity change carries the command past a
+        soft limit, brake to the limit instead. Returns True when it did."""
+        limit = limits.crossed(self.profile, *self._limits())
+        if limit is None:
+            return False
+        self._stop_at_limit(limit, decel, stop_kind)
+        return True
+
+    def _guard_tick(self, dt: float) -> None:
+        """A jog toward a soft limit: a stop at the limit once braking must start."""
+        limit = limits.due(self.profile, self._guard, *self._limits(), dt, self._max_acc,
+                           self._max_jerk)
+        if limit is not None:
+            self._stop_at_limit(limit, self._max_acc, None)
+
+    def _stop_at_limit(self, limit: float, decel: float, stop_kind) -> None:
+        """Brake onto the soft limit `limit` (loop frame). A jog becomes a position move to it
+        (its settling events); a STOP / ESTOP keeps its own (STOPPED / ESTOPPED at rest).
+        LIMIT is raised."""
+        planned = limits.stop_at(self.profile, limit, decel, self._estop_dec, self._max_vel,
+                                 *self._limits())
+        self._guard = 0
+        self._sticky |= _LIMIT
+        if not planned:              # ruckig refused every plan: brake as hard as allowed
+            self.profile.stop(max(decel, self._estop_dec))
+            self.settling.start_stop(stop_kind or 'estop')
+            self.target = None
+            return
+        if stop_kind is None:
+            self.target = limit - self.sampled_offset
+            self.settling.start_position_move(limit)
+            self._start_corrections()
+
+    def _start_corrections(self) -> None:
+        """A position move began: with feedback sampled, corrections follow its end; otherwise
+        a correction left from <axis>/correct is over."""
+        if self._sampled_fb:
+            self.sampled.start()
+        else:
+            self.sampled.cancel()
