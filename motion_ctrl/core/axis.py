@@ -85,6 +85,7 @@ class Axis(AxisCommands):
         self.motor_acc = self.load_acc = 0.0
         self.actual_pos = self.actual_vel = 0.0    # what the loop controls, compensation hidden
         self.following_error = 0.0
+        self._loop_cmd = self._loop_pos = self._loop_acc = 0.0   # this tick's loop terms
         self.correction = 0.0        # backlash + leadscrew correction on the motor command
         # Sampled dual loop (Galil): motor target = user target + offset.
         self.target: float | None = None
@@ -252,83 +253,99 @@ class Axis(AxisCommands):
         if sample_dt is None:
             sample_dt = dt
         if sample_dt > 0.0:
-            motor_pos = motor_counts / self._motor_cpm
-            load_pos = load_counts / self._load_cpm
-            motor_vel = (motor_pos - self.motor_pos) / sample_dt
-            load_vel = (load_pos - self.load_pos) / sample_dt
-            self.motor_acc = (motor_vel - self.motor_vel) / sample_dt
-            self.load_acc = (load_vel - self.load_vel) / sample_dt
-            self.motor_pos = motor_pos
-            self.load_pos = load_pos
-            self.motor_vel = motor_vel
-            self.load_vel = load_vel
-
+            self._read_encoders(motor_counts, load_counts, sample_dt)
         if not self.enabled:
             return self._update_open()
+        self._step_command(dt, age)
+        if self._following_error_fatal():
+            return 0.0
+        out = self._servo(sample_dt)
+        self._update_status(sample_dt, motor_counts)
+        if self.gather is not None and self.gather.running:
+            return self.gather.inject(out, self)     # (self.output stays the servo law's)
+        return out
 
+    # The stages of the tick, in order.
+    def _read_encoders(self, motor_counts, load_counts, sample_dt: float) -> None:
+        """1. Both encoders; velocity and acceleration over the time the sample covers."""
+        motor_pos = motor_counts / self._motor_cpm
+        load_pos = load_counts / self._load_cpm
+        motor_vel = (motor_pos - self.motor_pos) / sample_dt
+        load_vel = (load_pos - self.load_pos) / sample_dt
+        self.motor_acc = (motor_vel - self.motor_vel) / sample_dt
+        self.load_acc = (load_vel - self.load_vel) / sample_dt
+        self.motor_pos = motor_pos
+        self.load_pos = load_pos
+        self.motor_vel = motor_vel
+        self.load_vel = load_vel
+
+    def _step_command(self, dt: float, age: float) -> None:
+        """2-4. The profile's next command (a jog kept inside the soft limits), the screw
+        compensation on a motor-side loop, and the feedback each term closes on; the following
+        error against the command at the sample's time."""
         p = self.profile
         p.step(dt)
         if self._guard:
             self._guard_tick(dt)
         position = p.position
-        velocity = p.velocity
-        offset = self.sampled_offset
         if self._motor_side:
             correction = self.correction = self.backlash.step(position, dt)
             loop_cmd = position + correction
             loop_pos = self.motor_pos
-            actual_pos = loop_pos - correction - offset
+            self.actual_pos = loop_pos - correction - self.sampled_offset
         else:
             loop_cmd = position
-            loop_pos = actual_pos = self.load_pos
+            loop_pos = self.actual_pos = self.load_pos
         if self._vel_on_load:
-            actual_vel = self.load_vel
-            loop_acc = self.load_acc
+            self.actual_vel, self._loop_acc = self.load_vel, self.load_acc
         else:
-            actual_vel = self.motor_vel
-            loop_acc = self.motor_acc
-        self.actual_pos = actual_pos
-        self.actual_vel = actual_vel
+            self.actual_vel, self._loop_acc = self.motor_vel, self.motor_acc
         if age > 0.0:
-            loop_cmd -= velocity * age
-        fe = loop_cmd - loop_pos
-        self.following_error = fe
-        fatal = self._fe_fatal
-        if fatal > 0.0 and abs(fe) > fatal:
-            self._open_loop()
-            self._faults |= _FE_FATAL
-            self.fault_reason = (f'FOLLOWING_ERROR_FATAL: following error {fe * 1e3:+.3f} mm '
-                                 f'beyond following_error_fatal {fatal * 1e3:g} mm')
-            self._cancel('FOLLOWING_ERROR_FATAL')
-            self.settling.abort()
-            self._compose(_DONE | (self.settling._bits & _LATCHED))
-            return 0.0
+            loop_cmd -= p.velocity * age
+        self._loop_cmd = loop_cmd
+        self._loop_pos = loop_pos
+        self.following_error = loop_cmd - loop_pos
 
+    def _following_error_fatal(self) -> bool:
+        """5. Beyond following_error_fatal (PMAC Ixx11) the loop opens (the warning, Ixx12, is a
+        status bit)."""
+        fe, fatal = self.following_error, self._fe_fatal
+        if not (fatal > 0.0 and abs(fe) > fatal):
+            return False
+        self._open_loop()
+        self._faults |= _FE_FATAL
+        self.fault_reason = (f'FOLLOWING_ERROR_FATAL: following error {fe * 1e3:+.3f} mm '
+                             f'beyond following_error_fatal {fatal * 1e3:g} mm')
+        self._cancel('FOLLOWING_ERROR_FATAL')
+        self.settling.abort()
+        self._compose(_DONE | (self.settling._bits & _LATCHED))
+        return True
+
+    def _servo(self, sample_dt: float) -> float:
+        """6. The servo law, on new samples over the time they cover. Without a new sample
+        (feedback held up, within feedback_timeout) the output is held, as a drive holds its
+        command over a missed fieldbus frame: acting again on the same sample would wind the
+        integrator up against a position that is only old."""
         if sample_dt > 0.0:
-            # The servo law runs on new samples, over the time they cover.
-            out = self.servo.update(
-                sample_dt, cmd_pos=loop_cmd, cmd_vel=velocity, cmd_acc=p.acceleration,
-                act_pos=loop_pos, act_vel=actual_vel, vel_loop_vel=actual_vel,
-                vel_loop_acc=loop_acc, target_stopped=velocity == 0.0 and not p.moving,
+            p = self.profile
+            velocity = p.velocity
+            self.output = self.servo.update(
+                sample_dt, cmd_pos=self._loop_cmd, cmd_vel=velocity, cmd_acc=p.acceleration,
+                act_pos=self._loop_pos, act_vel=self.actual_vel, vel_loop_vel=self.actual_vel,
+                vel_loop_acc=self._loop_acc, target_stopped=velocity == 0.0 and not p.moving,
                 half_count=self._half)
-        else:
-            # No new sample (feedback held up, within feedback_timeout): hold the output, as a
-            # drive holds its command over a missed fieldbus frame. Acting again on the same
-            # sample would wind the integrator up against a position that is only old.
-            out = self.output
-        self.output = out
+        return self.output
 
-        # Settled time, and the sampled loop's judgements, advance with the encoder samples: a
-        # tick without a new one (the feedback held up, within feedback_timeout) shows nothing
-        # new, and a frozen sample must not make a move look settled.
-        bits = self.settling.step(sample_dt, position, velocity, p.done,
-                                  actual_pos + offset, actual_vel)
+    def _update_status(self, sample_dt: float, motor_counts) -> None:
+        """7. Settling events (RMP), the sampled loop's judgements and the status word. Settled
+        time advances with the encoder samples: a frozen sample must not make a move look
+        settled."""
+        p = self.profile
+        bits = self.settling.step(sample_dt, p.position, p.velocity, p.done,
+                                  self.actual_pos + self.sampled_offset, self.actual_vel)
         if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
-        if self.gather is not None and self.gather.running:
-            return self.gather.inject(out, self)     # (self.output stays the servo law's)
-        return out
 
     def _update_open(self) -> float:
         """Loop open: the command follows the actual position so closing it is bumpless."""
