@@ -34,7 +34,6 @@ from motion_ctrl.core.settling import Settling, status_word
 # Status bits as plain ints for the servo tick.
 _ENABLED = int(Status.ENABLED)
 _MOVING = int(Status.MOVING)
-_IN_FINE = int(Status.IN_FINE_POSITION)
 _DONE = int(Status.MOTION_DONE)
 _FE_WARNING = int(Status.FOLLOWING_ERROR_WARNING)
 _FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
@@ -44,12 +43,9 @@ _BACKLASH = int(Status.BACKLASH_ACTIVE)
 _FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
 _LIMIT = int(Status.LIMIT)
 _CORRECTING = int(Status.CORRECTING)
-_LATCHED = int(Status.STOPPED | Status.ESTOPPED | Status.ABORTED)
 
 _S_IDLE = SampledCorrection.IDLE
-_S_MOVING = SampledCorrection.MOVING
 _S_CORRECTING = SampledCorrection.CORRECTING
-_S_DONE = SampledCorrection.DONE
 
 # Status words kept in Axis.events when the caller asks for them (harness, tools): a bound, so a
 # long run does not keep every change (~75 bytes each).
@@ -318,7 +314,7 @@ class Axis(AxisCommands):
                              f'beyond following_error_fatal {fatal * 1e3:g} mm')
         self._cancel('FOLLOWING_ERROR_FATAL')
         self.settling.abort()
-        self._compose(_DONE | (self.settling._bits & _LATCHED))
+        self._compose(self.settling.open_loop_bits())
         return True
 
     def _servo(self, sample_dt: float) -> float:
@@ -358,7 +354,7 @@ class Axis(AxisCommands):
             self.actual_pos = self.load_pos
             self.actual_vel = self.load_vel if self._vel_on_load else self.motor_vel
         self.output = 0.0
-        self._compose(_DONE | (self.settling._bits & _LATCHED))
+        self._compose(self.settling.open_loop_bits())
         return 0.0
 
     def _sampled_step(self, dt, motor_counts, bits: int) -> int:
@@ -373,22 +369,30 @@ class Axis(AxisCommands):
             motor_error=self.following_error, load_error=load_error)
         if v2 is not None:
             self._correct_by(v2)
-            bits = self.settling._bits
-        phase = s.phase
-        if phase == _S_MOVING or phase == _S_CORRECTING:
-            bits &= ~(_DONE | _IN_FINE)
-        elif phase == _S_DONE:
-            bits |= _DONE | _IN_FINE
-        return bits
+            bits = self.settling.word
+        return s.motion_bits(bits)
 
     def _recompose(self) -> None:
         """The status word again after a command changed the state between ticks."""
         if self.enabled:
             self._compose(self._motion)
         else:
-            self._compose(_DONE | (self.settling._bits & _LATCHED))
+            self._compose(self.settling.open_loop_bits())
 
     def _compose(self, motion_bits: int) -> None:
+        """The status word from its owners, one per bit:
+
+        * MOVING, AT_TARGET, IN_COARSE_POSITION, IN_FINE_POSITION, AT_VELOCITY, MOTION_DONE,
+          STOPPED, ESTOPPED, ABORTED: Settling (`motion_bits`); in the sampled loop
+          SampledCorrection.motion_bits decides MOTION_DONE and IN_FINE_POSITION, and with the
+          loop open Settling.open_loop_bits;
+        * FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT: the axis's faults (until reset);
+        * LIMIT: the commands (a refused target, a jog braked at a soft limit);
+        * ENABLED: the loop state; FOLLOWING_ERROR_WARNING: this tick's following error (Ixx12);
+        * OUTPUT_SATURATED, INTEGRATOR_HELD: the servo law;
+        * CORRECTING (and MOVING with it): SampledCorrection;
+        * BACKLASH_ACTIVE: BacklashCompensation, on a motor-side loop.
+        """
         self._motion = motion_bits
         s = motion_bits | self._faults | self._sticky
         if self.enabled:

@@ -23,7 +23,11 @@
 """
 from __future__ import annotations
 
+from msg_defs.status import Status
 from motion_ctrl.core.registers import CorrectionConfig, defaults
+
+_DONE = int(Status.MOTION_DONE)
+_IN_FINE = int(Status.IN_FINE_POSITION)
 
 
 def feedback_encoders(feedback: str) -> tuple[str, str]:
@@ -78,6 +82,17 @@ class SampledCorrection:
 
     def cancel(self) -> None:
         self.phase = self.IDLE
+
+    def motion_bits(self, bits: int) -> int:
+        """The axis's motion bits in the sampled loop: the motor loop's settling (`bits`) says
+        when the motor is there, but the axis is done only when the load is (Galil: the
+        program waits for the correction loop), so MOTION_DONE and IN_FINE_POSITION follow
+        the corrections while they run."""
+        if self.phase == self.MOVING or self.phase == self.CORRECTING:
+            return bits & ~(_DONE | _IN_FINE)
+        if self.phase == self.DONE:
+            return bits | _DONE | _IN_FINE
+        return bits
 
     @property
     def correcting(self) -> bool:

@@ -83,6 +83,7 @@ _AT_VELOCITY = int(Status.MOTION_AT_VELOCITY)
 _STOPPED = int(Status.STOPPED)
 _ESTOPPED = int(Status.ESTOPPED)
 _ABORTED = int(Status.ABORTED)
+_LATCHED = _STOPPED | _ESTOPPED | _ABORTED   # events that outlive their move
 
 _STATUS_MEMO: dict[int, Status] = {}
 
@@ -165,6 +166,16 @@ class Settling:
         self.coarse_tolerance = config.coarse_position_tolerance
         self.velocity_tolerance = config.velocity_tolerance
         self.settling_time = config.settling_time
+
+    @property
+    def word(self) -> int:
+        """Last motion bits as a plain int (the servo tick's form of ``bits``)."""
+        return self._bits
+
+    def open_loop_bits(self) -> int:
+        """The motion bits while the loop is open: nothing is being moved (MOTION_DONE), and the
+        STOPPED / ESTOPPED / ABORTED event that ended the last move stays shown."""
+        return _DONE | (self._bits & _LATCHED)
 
     @property
     def bits(self) -> Status:
