@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from motion_ctrl.core.backlash import BacklashCompensation, apply_correction, interpolate_table
+from motion_ctrl.core.registers import BacklashConfig
 
 UM = 1e-6
 MM = 1e-3
@@ -19,9 +20,21 @@ def approx(x):
     return pytest.approx(x, abs=TOL)
 
 
+# This file's baseline: every register 0 / empty (the tests name what they turn on), under the
+# short names the manual uses (distance = Ixx86, takeup_rate = Ixx85, hysteresis = Ixx87).
+BASE = dict(distance=0.0, takeup_rate=0.0, hysteresis=0.0, backlash_table=[],
+            backlash_table_spacing=0.0, leadscrew_table=[], leadscrew_table_spacing=0.0)
+SHORT = {'distance': 'backlash_distance', 'takeup_rate': 'backlash_takeup_rate',
+         'hysteresis': 'backlash_hysteresis'}
+
+
+def config(**cfg) -> BacklashConfig:
+    """The compensation registers, validated by the register table as the controller does."""
+    return BacklashConfig.of({SHORT.get(k, k): v for k, v in (BASE | cfg).items()})
+
+
 def make(**cfg):
-    bc = BacklashCompensation()
-    bc.configure(**cfg)
+    bc = BacklashCompensation(config(**cfg))
     bc.reset(0.0)
     return bc
 
@@ -180,8 +193,8 @@ def test_backlash_table_adds_to_distance_only_moving_negative():
 def test_register_follows_position_dependent_target_at_takeup_rate():
     # table 0..100 um over 10 mm; moving - at 0.1 mm per tick the target drops 1 um per tick;
     # rate 0.01 m/s at dt 1 ms = 10 um per tick
-    bc = BacklashCompensation()
-    bc.configure(takeup_rate=0.01, backlash_table=[0.0, 100 * UM], backlash_table_spacing=0.01)
+    bc = BacklashCompensation(config(takeup_rate=0.01, backlash_table=[0.0, 100 * UM],
+                                     backlash_table_spacing=0.01))
     bc.reset(0.01)
     regs = {}
     for k in range(1, 21):
@@ -220,13 +233,12 @@ def test_reset_and_first_step_without_reset():
     bc.step(0.1 * MM, 1e-3)                     # reversal counted from the reset point
     assert bc.direction == -1
 
-    fresh = BacklashCompensation()
-    fresh.configure(distance=50 * UM, takeup_rate=0.0)
+    fresh = BacklashCompensation(config(distance=50 * UM, takeup_rate=0.0))
     assert fresh.step(1 * MM, 1e-3) == 0.0      # first step = reset there
     assert fresh.direction == +1 and fresh.reversal_reference == 1 * MM
 
 
-# 6. bad configuration raises and leaves the previous one working
+# 6. bad configuration is refused (by the register table) and the previous one keeps working
 @pytest.mark.parametrize("bad", [
     dict(distance=99 * UM, takeup_rate=-0.01),
     dict(distance=float("nan")),
@@ -248,7 +260,7 @@ def test_bad_configuration_raises_and_keeps_previous(bad):
     bc = make(distance=50 * UM, takeup_rate=0.0, hysteresis=4 * UM,
               leadscrew_table=[0.0, 10 * UM], leadscrew_table_spacing=0.01)
     with pytest.raises(ValueError):
-        bc.configure(**bad)
+        bc.configure(config(**bad))
     assert (bc.distance, bc.takeup_rate, bc.hysteresis) == (50 * UM, 0.0, 4 * UM)
     bc.step(1 * MM, 1e-3)
     # 10 um back > 4 um hysteresis: step to 50 um; leadscrew(0.99 mm) = 0.99 um

@@ -9,6 +9,7 @@ import pytest
 
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.backlash import BacklashCompensation, interpolate_table
+from motion_ctrl.core.registers import BacklashConfig
 
 UM = 1e-6
 
@@ -139,10 +140,11 @@ def test_the_controllers_compensation_commands_minus_the_measured_error():
     targets = iso230.plan_targets(0.005, 0.1016, 11)
     r = result_for(targets)
     tab = iso230.build_tables(r, tolerance=0.1 * 2.54e-6)
-    comp = BacklashCompensation()
-    comp.configure(distance=tab.backlash_distance, takeup_rate=0.0, hysteresis=2.54e-6,
-                   backlash_table=tab.backlash_table, backlash_table_spacing=tab.spacing,
-                   leadscrew_table=tab.leadscrew_table, leadscrew_table_spacing=tab.spacing)
+    comp = BacklashCompensation(BacklashConfig.of(dict(
+        backlash_distance=tab.backlash_distance, backlash_takeup_rate=0.0,
+        backlash_hysteresis=2.54e-6, backlash_table=list(tab.backlash_table),
+        backlash_table_spacing=tab.spacing, leadscrew_table=list(tab.leadscrew_table),
+        leadscrew_table_spacing=tab.spacing)))
     comp.reset(0.0)
 
     def go(p):

@@ -15,7 +15,7 @@ from msg_defs.status import Status
 from motion_ctrl.core.soft_limits import stopping_distance
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.profile import Profile
-from motion_ctrl.core.registers import INCH, axis_defaults
+from motion_ctrl.core.registers import INCH, ProfileConfig, axis_defaults
 
 S = Status
 T = 1e-3
@@ -448,7 +448,8 @@ def test_it_smoothing_in_the_loop():
 
     # smoothing = 1: the command is the ruckig trapezoid itself, acceleration steps of a_max
     ref = Profile(0.0)
-    ref.configure(V_MAX, A_MAX, 0.0, 1.0, T)
+    ref.configure(ProfileConfig.of(dict(max_velocity=V_MAX, max_acceleration=A_MAX,
+                                        max_jerk=0.0, smoothing=1.0)), T)
     ref.move_to(INCH)
     raw = []
     for _ in plain.t:

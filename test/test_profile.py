@@ -9,6 +9,7 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from motion_ctrl.core.profile import Profile  # noqa: E402
+from motion_ctrl.core.registers import CONTROLLER_AXIS, ProfileConfig  # noqa: E402
 
 T = 0.001          # 1 kHz servo period
 VMAX = 0.1
@@ -17,10 +18,13 @@ JMAX = 20.0
 REL = 1e-9         # relative slack on limits (float rounding only)
 
 
+def limits(vmax=VMAX, amax=AMAX, jerk=0.0, smoothing=1.0) -> ProfileConfig:
+    return ProfileConfig.of(dict(max_velocity=vmax, max_acceleration=amax, max_jerk=jerk,
+                                 smoothing=smoothing))
+
+
 def make(jerk=0.0, smoothing=1.0, position=0.0, vmax=VMAX, amax=AMAX):
-    p = Profile(position)
-    p.configure(vmax, amax, jerk, smoothing, T)
-    return p
+    return Profile(position, limits(vmax, amax, jerk, smoothing), T)
 
 
 def snap(p):
@@ -137,7 +141,7 @@ def test_replan_after_lowering_limits_brakes_down_to_new_vmax():
     p = make(jerk=JMAX)
     p.move_to(0.1)
     run(p, until=lambda q: q.raw_velocity == pytest.approx(VMAX) and q.raw_acceleration == 0)
-    p.configure(0.05, AMAX, JMAX, 1.0, T)
+    p.configure(limits(0.05, AMAX, JMAX, 1.0), T)
     rows = run(p, until=lambda q: True) + run(p, until=lambda q: True)
     assert all(r['rv'] == pytest.approx(VMAX) for r in rows)  # no re-plan by itself
     p.move_to(0.1)                                            # re-plan from v > v_max
@@ -285,14 +289,14 @@ def test_hold_resets_to_rest():
     lambda p: p.hold(float('nan')),
     lambda p: p.step(float('nan')),
     lambda p: p.step(-T),
-    lambda p: p.configure(0.0, AMAX, JMAX, 1.0, T),
-    lambda p: p.configure(VMAX, -1.0, JMAX, 1.0, T),
-    lambda p: p.configure(VMAX, AMAX, -1.0, 1.0, T),
-    lambda p: p.configure(VMAX, AMAX, float('nan'), 1.0, T),
-    lambda p: p.configure(float('inf'), AMAX, JMAX, 1.0, T),
-    lambda p: p.configure(VMAX, AMAX, JMAX, 0.003, T),
-    lambda p: p.configure(VMAX, AMAX, JMAX, 1.5, T),
-    lambda p: p.configure(VMAX, AMAX, JMAX, 1.0, 0.0),
+    lambda p: p.configure(limits(0.0, AMAX, JMAX, 1.0), T),
+    lambda p: p.configure(limits(VMAX, -1.0, JMAX, 1.0), T),
+    lambda p: p.configure(limits(VMAX, AMAX, -1.0, 1.0), T),
+    lambda p: p.configure(limits(VMAX, AMAX, float('nan'), 1.0), T),
+    lambda p: p.configure(limits(float('inf'), AMAX, JMAX, 1.0), T),
+    lambda p: p.configure(limits(VMAX, AMAX, JMAX, 0.003), T),
+    lambda p: p.configure(limits(VMAX, AMAX, JMAX, 1.5), T),
+    lambda p: p.configure(limits(VMAX, AMAX, JMAX, 1.0), 0.0),
 ])
 def test_invalid_input_raises_and_changes_nothing(call):
     p = make(jerk=JMAX, smoothing=0.5)
@@ -309,10 +313,11 @@ def test_invalid_input_raises_and_changes_nothing(call):
     assert p.position == 0.05 and p.at_target
 
 
-def test_move_before_configure_is_refused():
+def test_a_new_profile_runs_the_tables_limits():
     p = Profile(0.1)
-    with pytest.raises(RuntimeError):
-        p.move_to(0.2)
+    assert (p.max_velocity, p.max_acceleration, p.max_jerk, p.smoothing) == (
+        CONTROLLER_AXIS['max_velocity'].default, CONTROLLER_AXIS['max_acceleration'].default,
+        CONTROLLER_AXIS['max_jerk'].default, CONTROLLER_AXIS['smoothing'].default)
     p.stop(1.0)                              # STOP/ESTOP always work
     assert p.kind == 'idle' and p.position == 0.1
 

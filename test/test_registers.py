@@ -105,11 +105,14 @@ def test_other_types_are_left_to_be_refused(name, value):
 def test_core_objects_start_with_the_tables_defaults():
     """No default lives outside the register table: each core object built without arguments
     runs the table's values (issue 13; Settling once had its own tolerances, the sampled
-    correction 20 moves against the table's 200)."""
+    correction 20 moves against the table's 200, the backlash compensation a take-up rate of 0
+    against 0.01 m/s)."""
     from motion_ctrl.core.axis import Axis
+    from motion_ctrl.core.backlash import BacklashCompensation
     from motion_ctrl.core.dual_loop import SampledCorrection
-    from motion_ctrl.core.registers import (CONTROLLER_AXIS, CorrectionConfig, LawConfig,
-                                            SettlingConfig)
+    from motion_ctrl.core.profile import Profile
+    from motion_ctrl.core.registers import (CONTROLLER_AXIS, BacklashConfig, CorrectionConfig,
+                                            LawConfig, ProfileConfig, SettlingConfig)
     from motion_ctrl.core.servo_law import ServoLaw
     from motion_ctrl.core.settling import Settling
 
@@ -125,9 +128,15 @@ def test_core_objects_start_with_the_tables_defaults():
     assert c.tolerance_counts == round(table('correction_tolerance')
                                        * table('load_counts_per_m')) == 1
     assert ServoLaw().config == LawConfig.of(R.axis_defaults())
+    p = Profile()
+    assert (p.max_velocity, p.max_acceleration, p.max_jerk, p.smoothing) == (
+        table('max_velocity'), table('max_acceleration'), table('max_jerk'), table('smoothing'))
+    b = BacklashCompensation()
+    assert (b.distance, b.takeup_rate, b.hysteresis) == (
+        table('backlash_distance'), table('backlash_takeup_rate'), table('backlash_hysteresis'))
     axis = Axis('x')
     assert axis.r == R.axis_defaults()
-    for cfg in (LawConfig, SettlingConfig, CorrectionConfig):
+    for cfg in (LawConfig, SettlingConfig, CorrectionConfig, ProfileConfig, BacklashConfig):
         for f in dataclasses.fields(cfg):
             assert not f.init or f.name in CONTROLLER_AXIS, f'{cfg.__name__}.{f.name}'
             assert f.default is dataclasses.MISSING, f'{cfg.__name__}.{f.name} has a default'

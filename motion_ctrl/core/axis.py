@@ -26,8 +26,9 @@ from motion_ctrl.core.dual_loop import SampledCorrection, feedback_encoders
 from motion_ctrl.core.commands import AxisCommands
 from motion_ctrl.core.gather import Gather
 from motion_ctrl.core.profile import Profile
-from motion_ctrl.core.registers import (AXIS_REGISTERS, CorrectionConfig, LawConfig,
-                                        SettlingConfig, axis_defaults, refusals)
+from motion_ctrl.core.registers import (AXIS_REGISTERS, BacklashConfig, CorrectionConfig,
+                                        LawConfig, ProfileConfig, SettlingConfig, axis_defaults,
+                                        refusals)
 from motion_ctrl.core.servo_law import ServoLaw
 from motion_ctrl.core.settling import Settling, status_word
 
@@ -105,13 +106,9 @@ class Axis(AxisCommands):
         r = dict(values)
         T = self.servo_period
         # Every module validates its own inputs before anything is replaced.
-        self.profile.configure(r['max_velocity'], r['max_acceleration'], r['max_jerk'],
-                               r['smoothing'], T)
+        self.profile.configure(ProfileConfig.of(r), T)
         self.settling.configure(SettlingConfig.of(r))
-        self.backlash.configure(r['backlash_distance'], r['backlash_takeup_rate'],
-                                r['backlash_hysteresis'], r['backlash_table'],
-                                r['backlash_table_spacing'], r['leadscrew_table'],
-                                r['leadscrew_table_spacing'])
+        self.backlash.configure(BacklashConfig.of(r))
         self.sampled.configure(CorrectionConfig.of(r))
         old = self.r
         self.servo.configure(LawConfig.of(r))

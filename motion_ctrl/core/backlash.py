@@ -63,6 +63,8 @@ and never modifies what it is given.
 import math
 from numbers import Real
 
+from motion_ctrl.core.registers import BacklashConfig, defaults
+
 __all__ = ["interpolate_table", "apply_correction", "BacklashCompensation"]
 
 
@@ -74,26 +76,6 @@ def _finite(name, value):
     if not math.isfinite(value):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return value
-
-
-def _table(name, table):
-    """Return ``table`` as a tuple of finite floats, else raise ValueError."""
-    if isinstance(table, (str, bytes)):
-        raise ValueError(f"{name} must be a sequence of numbers, got {table!r}")
-    try:
-        entries = list(table)
-    except TypeError:
-        raise ValueError(f"{name} must be a sequence of numbers, got {table!r}") from None
-    return tuple(_finite(f"{name}[{i}]", v) for i, v in enumerate(entries))
-
-
-def _spacing(name, spacing, table):
-    spacing = _finite(name, spacing)
-    if spacing < 0.0:
-        raise ValueError(f"{name} must be >= 0, got {spacing!r}")
-    if table and spacing <= 0.0:
-        raise ValueError(f"{name} must be > 0 when its table is non-empty")
-    return spacing
 
 
 def interpolate_table(table, spacing, position) -> float:
@@ -147,15 +129,7 @@ class BacklashCompensation:
     as ``reset(commanded_position)`` followed by a normal step.
     """
 
-    def __init__(self):
-        # configuration
-        self._distance = 0.0
-        self._takeup_rate = 0.0
-        self._hysteresis = 0.0
-        self._bl_table = ()
-        self._bl_spacing = 0.0
-        self._ls_table = ()
-        self._ls_spacing = 0.0
+    def __init__(self, config: BacklashConfig | None = None):
         # state
         self._direction = 1
         self._register = 0.0
@@ -163,45 +137,27 @@ class BacklashCompensation:
         self._extreme = None          # running extreme in the current direction
         self._nominal = None          # last nominal commanded position seen
         self._correction = 0.0
+        self.configure(config or defaults(BacklashConfig))
 
     # ------------------------------------------------------------------ config
-    def configure(self, distance=0.0, takeup_rate=0.0, hysteresis=0.0,
-                  backlash_table=(), backlash_table_spacing=0.0,
-                  leadscrew_table=(), leadscrew_table_spacing=0.0) -> None:
-        """Set the compensation parameters (all SI: m, m/s).
+    def configure(self, config: BacklashConfig) -> None:
+        """Set the compensation registers (all SI: m, m/s), validated by the register table:
+        ``backlash_distance`` (Ixx86, m, any sign); ``backlash_takeup_rate`` (Ixx85, m/s; 0 =
+        introduce/remove the backlash at once, as a step); ``backlash_hysteresis`` (Ixx87, m);
+        ``backlash_table`` (DEFINE BLCOMP, m, added to the distance while moving negative) and
+        ``leadscrew_table`` (DEFINE COMP, m, added to the correction in both directions), each
+        with a spacing (m), > 0 while the table is set.
 
-        ``distance`` (Ixx86, m, any finite sign); ``takeup_rate`` (Ixx85, m/s,
-        >= 0; 0 = introduce/remove the backlash at once, as a step);
-        ``hysteresis`` (Ixx87, m, >= 0); ``backlash_table`` (DEFINE BLCOMP, m,
-        added to ``distance`` while moving negative) and ``leadscrew_table``
-        (DEFINE COMP, m, added to the correction in both directions), each with
-        a spacing (m) that must be > 0 when the table is non-empty (and never
-        negative).
-
-        Everything is validated first: on any bad value ValueError is raised
-        and the previous configuration stays in force unchanged.  The running
-        state (direction, register) is kept; a changed target is reached by
-        the normal ramp on the following steps.
+        The running state (direction, register) is kept; a changed target is reached by the
+        normal ramp on the following steps.
         """
-        distance = _finite("distance", distance)
-        takeup_rate = _finite("takeup_rate", takeup_rate)
-        if takeup_rate < 0.0:
-            raise ValueError(f"takeup_rate must be >= 0, got {takeup_rate!r}")
-        hysteresis = _finite("hysteresis", hysteresis)
-        if hysteresis < 0.0:
-            raise ValueError(f"hysteresis must be >= 0, got {hysteresis!r}")
-        bl_table = _table("backlash_table", backlash_table)
-        bl_spacing = _spacing("backlash_table_spacing", backlash_table_spacing, bl_table)
-        ls_table = _table("leadscrew_table", leadscrew_table)
-        ls_spacing = _spacing("leadscrew_table_spacing", leadscrew_table_spacing, ls_table)
-
-        self._distance = distance
-        self._takeup_rate = takeup_rate
-        self._hysteresis = hysteresis
-        self._bl_table = bl_table
-        self._bl_spacing = bl_spacing
-        self._ls_table = ls_table
-        self._ls_spacing = ls_spacing
+        self._distance = config.backlash_distance
+        self._takeup_rate = config.backlash_takeup_rate
+        self._hysteresis = config.backlash_hysteresis
+        self._bl_table = config.backlash_table
+        self._bl_spacing = config.backlash_table_spacing
+        self._ls_table = config.leadscrew_table
+        self._ls_spacing = config.leadscrew_table_spacing
 
     # ------------------------------------------------------------------- state
     def reset(self, commanded_position: float) -> None:

@@ -33,6 +33,8 @@ from typing import Protocol
 from ruckig import (ControlInterface, InputParameter, Result, Ruckig,
                     RuckigError, Trajectory)
 
+from motion_ctrl.core.registers import ProfileConfig, defaults
+
 __all__ = ['Path', 'Profile']
 
 
@@ -102,17 +104,18 @@ class Profile:
     _path: Path | None
     _offset: float
 
-    def __init__(self, position: float = 0.0):
+    def __init__(self, position: float = 0.0, config: ProfileConfig | None = None,
+                 servo_period: float = 1e-3):
         if not _finite(position):
             raise ValueError(f'initial position must be finite, got {position!r}')
         position = float(position)
 
-        self.max_velocity: float | None = None
-        self.max_acceleration: float | None = None
-        self.max_jerk = 0.0
+        self.max_velocity = self.max_acceleration = self.max_jerk = 0.0
         self.smoothing = 1.0
-        self.servo_period = 0.001
+        self.servo_period = servo_period
         self._tau = 0.0
+        self._f_dt: float | None = None
+        self.configure(config or defaults(ProfileConfig), servo_period)
 
         # Allocated once; re-plans reuse them, steps never allocate ruckig objects.
         self._ruckig = Ruckig(1)
@@ -121,7 +124,7 @@ class Profile:
         self._spare = Trajectory(1)   # planned into first, so a failure keeps _traj
 
         # Cache of the filter coefficients for the last dt (dt is usually constant).
-        self._f_dt: float | None = None
+        self._f_dt = None
         self._f_e = 0.0
         self._f_c = 0.0
 
@@ -130,32 +133,19 @@ class Profile:
         self._reset(position)
 
     # ------------------------------------------------------------------ config
-    def configure(self, max_velocity, max_acceleration, max_jerk, smoothing,
-                  servo_period):
-        """Set limits and IT smoothing.
+    def configure(self, config: ProfileConfig, servo_period: float) -> None:
+        """Set limits and IT smoothing (validated by the register table) for a servo period.
 
         New limits apply from the next re-plan (move_to/jog/stop): a move in
         progress is not re-planned behind the caller's back. The smoothing
         time constant applies from the next step.
         """
-        if not (_finite(max_velocity) and max_velocity > 0):
-            raise ValueError(f'max_velocity must be finite and > 0, got {max_velocity!r}')
-        if not (_finite(max_acceleration) and max_acceleration > 0):
-            raise ValueError(
-                f'max_acceleration must be finite and > 0, got {max_acceleration!r}')
-        if not (_finite(max_jerk) and max_jerk >= 0):
-            raise ValueError(
-                f'max_jerk must be finite and >= 0 (0 = trapezoid), got {max_jerk!r}')
-        if not (_finite(smoothing) and 0.004 <= smoothing <= 1.0):
-            raise ValueError(
-                f'smoothing (Galil IT) must be in [0.004, 1], got {smoothing!r}')
         if not (_finite(servo_period) and servo_period > 0):
             raise ValueError(f'servo_period must be finite and > 0, got {servo_period!r}')
-
-        self.max_velocity = float(max_velocity)
-        self.max_acceleration = float(max_acceleration)
-        self.max_jerk = float(max_jerk)
-        self.smoothing = float(smoothing)
+        self.max_velocity = config.max_velocity
+        self.max_acceleration = config.max_acceleration
+        self.max_jerk = config.max_jerk
+        self.smoothing = config.smoothing
         self.servo_period = float(servo_period)
         # IT is a per-sample pole; as a continuous lag that is tau = -T/ln(1-IT).
         if self.smoothing >= 1.0:
@@ -174,7 +164,6 @@ class Profile:
         """
         if not _finite(target):
             raise ValueError(f'move target must be finite, got {target!r}')
-        self._require_configured()
         vmax = _override('max_velocity', max_velocity, self.max_velocity)
         amax = _override('max_acceleration', max_acceleration, self.max_acceleration)
         target = float(target)
@@ -214,9 +203,7 @@ class Profile:
         """
         if not _finite(velocity):
             raise ValueError(f'jog velocity must be finite, got {velocity!r}')
-        self._require_configured()
         vmax = self.max_velocity
-        assert vmax is not None                 # (configured)
         velocity = min(max(float(velocity), -vmax), vmax)
         self._plan(ControlInterface.Velocity, 0.0, velocity,
                    self.max_acceleration)
@@ -339,10 +326,6 @@ class Profile:
                 or self.raw_velocity != 0.0)
 
     # ---------------------------------------------------------------- internal
-    def _require_configured(self):
-        if self.max_velocity is None:
-            raise RuntimeError('Profile.configure() must be called before move_to()/jog()')
-
     def _reset(self, position: float) -> None:
         self.raw_position = position
         self.raw_velocity = 0.0

@@ -417,6 +417,35 @@ class CorrectionConfig:
         return _of(cls, values)
 
 
+@dataclass(frozen=True, slots=True)
+class ProfileConfig:
+    """The move generator's limits and smoothing (Galil SP / AC / DC / IT, PMAC Ixx16..21)."""
+    max_velocity: float
+    max_acceleration: float
+    max_jerk: float
+    smoothing: float
+
+    @classmethod
+    def of(cls, values: dict) -> ProfileConfig:
+        return _of(cls, values)
+
+
+@dataclass(frozen=True, slots=True)
+class BacklashConfig:
+    """Backlash and leadscrew compensation (PMAC Ixx85..87, DEFINE BLCOMP, DEFINE COMP)."""
+    backlash_distance: float
+    backlash_takeup_rate: float
+    backlash_hysteresis: float
+    backlash_table: tuple
+    backlash_table_spacing: float
+    leadscrew_table: tuple
+    leadscrew_table_spacing: float
+
+    @classmethod
+    def of(cls, values: dict) -> BacklashConfig:
+        return _of(cls, values)
+
+
 def defaults(cls):
     """`cls` (a configuration above) with the table's defaults."""
     return cls.of(axis_defaults(AXIS_REGISTERS))

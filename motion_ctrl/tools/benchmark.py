@@ -35,7 +35,7 @@ def _pct(values, q):
 def bench_core(n: int = 20000) -> list[tuple[str, float]]:
     from motion_ctrl.core.axis import Axis
     from motion_ctrl.core.profile import Profile
-    from motion_ctrl.core.registers import SettlingConfig, axis_defaults
+    from motion_ctrl.core.registers import ProfileConfig, SettlingConfig, axis_defaults
     from motion_ctrl.core.settling import Settling
     r = axis_defaults()
     rows = []
@@ -47,7 +47,7 @@ def bench_core(n: int = 20000) -> list[tuple[str, float]]:
         return (time.perf_counter() - t) / count * 1e6
 
     p = Profile(0.0)
-    p.configure(r['max_velocity'], r['max_acceleration'], 20.0, 0.1, 1e-3)
+    p.configure(ProfileConfig.of(r | {'max_jerk': 20.0, 'smoothing': 0.1}), 1e-3)
     s = Settling(SettlingConfig.of(r))
 
     def profile_settling(i):
