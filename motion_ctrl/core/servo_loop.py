@@ -83,6 +83,7 @@ class ServoLoop:
         self.running_paths: list[dict] = []
         self._faults = {a: 0 for a in axes}
         self._diverged: dict[str, tuple | None] = {}      # the last logged, per axis
+        self._age_recorded = False   # the sample age of this tick is in the statistics
 
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
@@ -236,54 +237,77 @@ class ServoLoop:
             self._scheduled(now, out)
         if self.scheduled_paths or self.running_paths:
             self._coordinate(now, out)
-        age_recorded = False         # (one encoder message carries every axis)
+        self._age_recorded = False   # (one encoder message carries every axis)
         for a, axis in self.axes.items():
             enc = self.enc[a]
             if enc is None:
                 continue                 # no feedback yet: the loop stays open, nothing sent
-            motor, load, s_stamp = enc
-            if s_stamp != self.enc_used[a]:
-                self.waited[a] = 0.0
-            else:
-                self.waited[a] = _ns(self.waited[a] + min(dt, 2 * self.period))
-                if self.waited[a] > self.stats.feedback_wait_max:
-                    self.stats.feedback_wait_max = self.waited[a]
-            stale = self.waited[a] > self.feedback_timeout
-            if not axis.homed:
-                first = self.first_sample.setdefault(a, s_stamp)
-                if stale or (not self.sim_time and s_stamp - first < STREAM_SETTLE):
-                    continue             # the encoder stream is not established yet: wait
+            stale = self._watch_feedback(a, enc[2], dt)
+            if not axis.homed and not self._stream_established(a, enc[2], stale):
+                continue                 # the encoder stream is not established yet: wait
             if stale:
-                if not axis.fault_bits & _FEEDBACK_FAULT:
-                    opened = 'loop opened' if axis.enabled else 'the loop was open'
-                    out.log.append(('error', (
-                        f'{a}: FEEDBACK_FAULT: no new encoder sample for '
-                        f'{self.waited[a] * 1e3:.0f} ms of servo time (the last is stamped '
-                        f'{(now - s_stamp) * 1e3:.0f} ms ago); {opened}, call {a}/reset')))
-                axis.feedback_fault()
-                volts = axis.update(dt, motor, load, sample_dt=0.0)
+                volts = self._feedback_lost(a, axis, enc, now, dt, out)
             else:
-                prev = self.enc_used[a]
-                sample_dt = None if prev is None else _ns(s_stamp - prev)
-                self.enc_used[a] = s_stamp
-                age = min(max(now - s_stamp, 0.0), 3 * self.period)
-                if not age_recorded:
-                    age_recorded = True
-                    self.stats.feedback_age(age)
-                volts = axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
-            faults = axis.fault_bits
-            if faults & _FE_FATAL and not self._faults[a] & _FE_FATAL:
-                out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call '
-                                         f'{a}/reset'))
-            self._faults[a] = faults
-            diverged = axis.sampled.diverged
-            if diverged is not None and self._diverged.get(a) is not diverged:
-                out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
-                                           f'from {diverged[0]} to {diverged[1]} counts'))
-            self._diverged[a] = diverged
+                volts = self._servo(a, axis, enc, now, dt)
+            self._report(a, axis, out)
             out.names.append(a)
             out.outputs.append(volts)
         return out
+
+    # The stages of one axis's tick.
+    def _watch_feedback(self, a: str, stamp: float, dt: float) -> bool:
+        """The feedback watchdog: servo time waited for a new sample of axis `a` (a late tick
+        counts at most two periods); True once it exceeds feedback_timeout."""
+        if stamp != self.enc_used[a]:
+            self.waited[a] = 0.0
+        else:
+            self.waited[a] = _ns(self.waited[a] + min(dt, 2 * self.period))
+            if self.waited[a] > self.stats.feedback_wait_max:
+                self.stats.feedback_wait_max = self.waited[a]
+        return self.waited[a] > self.feedback_timeout
+
+    def _stream_established(self, a: str, stamp: float, stale: bool) -> bool:
+        """The loop-closing gate: an axis closes its loop once its encoder stream has run for
+        STREAM_SETTLE (real time), not on the first sample of a stream that may still stall."""
+        first = self.first_sample.setdefault(a, stamp)
+        return not stale and (self.sim_time or stamp - first >= STREAM_SETTLE)
+
+    def _feedback_lost(self, a: str, axis: Axis, enc, now: float, dt: float, out: Tick) -> float:
+        """FEEDBACK_FAULT: the loop opens (logged once, when it latches)."""
+        motor, load, stamp = enc
+        if not axis.fault_bits & _FEEDBACK_FAULT:
+            opened = 'loop opened' if axis.enabled else 'the loop was open'
+            out.log.append(('error', (
+                f'{a}: FEEDBACK_FAULT: no new encoder sample for {self.waited[a] * 1e3:.0f} ms '
+                f'of servo time (the last is stamped {(now - stamp) * 1e3:.0f} ms ago); '
+                f'{opened}, call {a}/reset')))
+        axis.feedback_fault()
+        return axis.update(dt, motor, load, sample_dt=0.0)
+
+    def _servo(self, a: str, axis: Axis, enc, now: float, dt: float) -> float:
+        """The axis's tick on its latest sample: the time since the previous sample, and the
+        sample's age at this tick (the axis takes the error against the command of then)."""
+        motor, load, stamp = enc
+        prev = self.enc_used[a]
+        sample_dt = None if prev is None else _ns(stamp - prev)
+        self.enc_used[a] = stamp
+        age = min(max(now - stamp, 0.0), 3 * self.period)
+        if not self._age_recorded:
+            self._age_recorded = True
+            self.stats.feedback_age(age)
+        return axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
+
+    def _report(self, a: str, axis: Axis, out: Tick) -> None:
+        """Log what latched this tick: a fatal following error, a correction loop stopped."""
+        faults = axis.fault_bits
+        if faults & _FE_FATAL and not self._faults[a] & _FE_FATAL:
+            out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call {a}/reset'))
+        self._faults[a] = faults
+        diverged = axis.sampled.diverged
+        if diverged is not None and self._diverged.get(a) is not diverged:
+            out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
+                                       f'from {diverged[0]} to {diverged[1]} counts'))
+        self._diverged[a] = diverged
 
     def _scheduled(self, now: float, out: Tick) -> None:
         void = {a for _, a, _, epoch in self.scheduled if epoch != self.axes[a].command_epoch}
