@@ -257,52 +257,10 @@ class Settling:
         mode = self.mode
 
         if mode == POSITION:
-            target = self.target
-            at_target = command_position == target           # exact (seed 004: "equal")
-            error = abs(target - actual_position)
-            if at_target:
-                bits |= _AT_TARGET
-            if error <= self.coarse_tolerance:
-                bits |= _IN_COARSE
-            # "After AT_TARGET, the evaluation of the settling criteria begins ... Whenever
-            # either criteria 1 or 2 is not satisfied, SETTLED is cleared and the settling timer
-            # is reset."  Velocity tolerance 0 does not disable the velocity criterion.
-            if (at_target and error <= self.fine_tolerance
-                    and abs(actual_velocity) <= self.velocity_tolerance):
-                if self._timer(clock, dt):
-                    bits |= _IN_FINE
-                    self._done = True   # MOTION_DONE raised once per move, then latched
-            elif self.settle_start is not None:
-                self.settle_start = None
-                self._held = 0.0
-            if self._done:
-                bits |= _DONE
-
+            bits |= self._position_bits(clock, dt, command_position, actual_position,
+                                        actual_velocity)
         elif mode == VELOCITY:
-            tv = self.target_velocity
-            if tv == 0.0:
-                # "MOTION_DONE ... by a velocity move only if the target velocity is zero and
-                # the velocity criteria have been met for the period specified by the settling
-                # time" -- timed from when the profile reached zero.
-                if not moving and abs(actual_velocity) <= self.velocity_tolerance:
-                    if self._timer(clock, dt):
-                        self._done = True
-                elif self.settle_start is not None:
-                    self.settle_start = None
-                    self._held = 0.0
-                if self._done:
-                    bits |= _DONE
-            else:
-                # "continuously evaluated during the constant velocity portion ... Whenever
-                # Criteria 1 is not satisfied, MOTION_AT_VELOCITY is set to FALSE and the
-                # settling timer is reset."
-                if profile_done and abs(actual_velocity - tv) <= self.velocity_tolerance:
-                    if self._timer(clock, dt):
-                        bits |= _AT_VELOCITY
-                elif self.settle_start is not None:
-                    self.settle_start = None
-                    self._held = 0.0
-
+            bits |= self._velocity_bits(clock, dt, moving, profile_done, actual_velocity)
         elif mode == STOP or mode == ESTOP:
             # "Normally a MOTION_DONE event will be created at the end of STOP time."
             if not moving:
@@ -319,6 +277,54 @@ class Settling:
 
         self._bits = bits
         return bits
+
+    def _position_bits(self, clock, dt, command_position, actual_position,
+                       actual_velocity) -> int:
+        """A position move: AT_TARGET when the command equals the target (seed 004: "equal"),
+        IN_COARSE within the coarse tolerance; "After AT_TARGET, the evaluation of the settling
+        criteria begins ... Whenever either criteria 1 or 2 is not satisfied, SETTLED is cleared
+        and the settling timer is reset" (velocity tolerance 0 does not disable its
+        criterion); MOTION_DONE once settled, latched for the move."""
+        bits = 0
+        target = self.target
+        at_target = command_position == target
+        error = abs(target - actual_position)
+        if at_target:
+            bits |= _AT_TARGET
+        if error <= self.coarse_tolerance:
+            bits |= _IN_COARSE
+        if (at_target and error <= self.fine_tolerance
+                and abs(actual_velocity) <= self.velocity_tolerance):
+            if self._timer(clock, dt):
+                bits |= _IN_FINE
+                self._done = True
+        elif self.settle_start is not None:
+            self.settle_start = None
+            self._held = 0.0
+        return bits | _DONE if self._done else bits
+
+    def _velocity_bits(self, clock, dt, moving, profile_done, actual_velocity) -> int:
+        """A velocity move. To zero: "MOTION_DONE ... by a velocity move only if the target
+        velocity is zero and the velocity criteria have been met for the period specified by
+        the settling time" (timed from when the profile reached zero). Otherwise "continuously
+        evaluated during the constant velocity portion ... Whenever Criteria 1 is not
+        satisfied, MOTION_AT_VELOCITY is set to FALSE and the settling timer is reset"."""
+        tv = self.target_velocity
+        if tv == 0.0:
+            holds = not moving and abs(actual_velocity) <= self.velocity_tolerance
+        else:
+            holds = profile_done and abs(actual_velocity - tv) <= self.velocity_tolerance
+        bits = 0
+        if holds:
+            if self._timer(clock, dt):
+                if tv == 0.0:
+                    self._done = True
+                else:
+                    bits = _AT_VELOCITY
+        elif self.settle_start is not None:
+            self.settle_start = None
+            self._held = 0.0
+        return bits | _DONE if self._done and tv == 0.0 else bits
 
     def _timer(self, clock, dt):
         """The timed criterion holds on this tick: advance the settling timer; True once it has
