@@ -242,56 +242,59 @@ class Profile:
         x0p = self.raw_position
         x0v = self.raw_velocity
         x0a = self.raw_acceleration
-
         if not self._raw_done:
-            t = self._t + dt
-            self._t = t
-            if t >= self.duration:
-                self._finish_segment(t)
-            elif self._path is not None:
-                p, v, a = self._path.at(t)
-                self.raw_position = p + self._offset
-                self.raw_velocity = v
-                self.raw_acceleration = a
-            else:
-                p, v, a = self._traj.at_time(t)
-                self.raw_position = p[0]
-                self.raw_velocity = v[0]
-                self.raw_acceleration = a[0]
+            self._step_raw(self._t + dt)
         elif x0v != 0.0:
             # Finished velocity move: constant speed, no need to ask ruckig.
             self.raw_position = x0p + x0v * dt
         elif self._settled:
             return   # at rest and fully settled: nothing to do
-
-        tau = self._tau
-        if tau == 0.0:
+        if self._tau == 0.0:
             self.position = self.raw_position
             self.velocity = self.raw_velocity
             self.acceleration = self.raw_acceleration
             self._settled = True
         else:
-            if dt != self._f_dt:
-                r = dt / tau
-                self._f_e = math.exp(-r)
-                self._f_c = -math.expm1(-r) / r   # = tau/dt * (1 - e), safe for tiny r
-                self._f_dt = dt
-            e = self._f_e
-            c = self._f_c
-            # Exact solution of tau*y' = x - y for x linear over the step.
-            x1 = self.raw_position
-            self.position = x1 + (self.position - x0p) * e - (x1 - x0p) * c
-            x1 = self.raw_velocity
-            self.velocity = x1 + (self.velocity - x0v) * e - (x1 - x0v) * c
-            x1 = self.raw_acceleration
-            self.acceleration = x1 + (self.acceleration - x0a) * e - (x1 - x0a) * c
-            if self._raw_done:
-                self._try_snap()
-            else:
-                self._settled = False
-
+            self._smooth(dt, x0p, x0v, x0a)
         if self.kind == 'stop' and self._raw_done and self._settled:
             self.kind = 'idle'
+
+    def _step_raw(self, t: float) -> None:
+        """The unsmoothed command at segment time `t`: ruckig's trajectory or the path."""
+        self._t = t
+        if t >= self.duration:
+            self._finish_segment(t)
+        elif self._path is not None:
+            p, v, a = self._path.at(t)
+            self.raw_position = p + self._offset
+            self.raw_velocity = v
+            self.raw_acceleration = a
+        else:
+            p, v, a = self._traj.at_time(t)
+            self.raw_position = p[0]
+            self.raw_velocity = v[0]
+            self.raw_acceleration = a[0]
+
+    def _smooth(self, dt: float, x0p: float, x0v: float, x0a: float) -> None:
+        """Galil IT: the exact solution of tau·y' = x − y over the step, x linear from its
+        value at the start of the step (x0) to the new raw command."""
+        if dt != self._f_dt:
+            r = dt / self._tau
+            self._f_e = math.exp(-r)
+            self._f_c = -math.expm1(-r) / r   # = tau/dt * (1 - e), safe for tiny r
+            self._f_dt = dt
+        e = self._f_e
+        c = self._f_c
+        x1 = self.raw_position
+        self.position = x1 + (self.position - x0p) * e - (x1 - x0p) * c
+        x1 = self.raw_velocity
+        self.velocity = x1 + (self.velocity - x0v) * e - (x1 - x0v) * c
+        x1 = self.raw_acceleration
+        self.acceleration = x1 + (self.acceleration - x0a) * e - (x1 - x0a) * c
+        if self._raw_done:
+            self._try_snap()
+        else:
+            self._settled = False
 
     def raw_extrema(self):
         """(min, max) raw position over the current segment, from the state it was planned
