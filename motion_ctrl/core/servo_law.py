@@ -51,90 +51,83 @@ from motion_ctrl.core.notch import Biquad
 from motion_ctrl.core.registers import AXIS_REGISTERS, LawConfig, axis_defaults
 
 
-def _sign(v: float) -> float:
-    return (v > 0.0) - (v < 0.0)
-
-
 def _clamp(v: float, lo: float, hi: float) -> float:
     return lo if v < lo else hi if v > hi else v
 
 
-class _Tick:
-    """What one tick hands the control law: the error, feedforward and measurements, and the
-    finishing stage (output deadband with ratioing) to apply to the notch output."""
-    __slots__ = ('error', 'raw_error', 'feedforward', 'meas', 'meas_rate', 'target_stopped',
-                 'anti_hunting', 'cmd_vel')
-    error: float            # the loop's error (position error clipped at Ixx67, or velocity)
-    raw_error: float        # unclipped, for deadband ratioing and anti-hunting
-    feedforward: float      # kvff·CV + kaff·CA + friction_ff·sgn(CV) + bias
-    meas: float             # the measurement I-PD acts on (position, or velocity)
-    meas_rate: float        # its rate on the velocity-loop encoder (kd's input)
-    target_stopped: bool
-    anti_hunting: bool
-    cmd_vel: float
-
-    def finish(self, law: ServoLaw, v: float) -> float:
-        c = law.config
-        return db.apply_deadband(v, c.output_deadband, self.raw_error, c.deadband_tolerance,
-                                 self.target_stopped, c.position_mode)
+def _finish(c: LawConfig, v: float, raw_error: float, target_stopped: bool) -> float:
+    """The output deadband (with ratioing) on the notch output, when one is set."""
+    if c.output_deadband == 0.0:
+        return v
+    return db.apply_deadband(v, c.output_deadband, raw_error, c.deadband_tolerance,
+                             target_stopped, c.position_mode)
 
 
 class PidLaw:
     """PMAC PID: out = kp·FE + I + ff − kd·AV. The integrator input is off while
     integration_mode is at_rest and the commanded velocity is non-zero (Ixx34), while this
-    tick's output would saturate (Ixx69), and anti-hunting lets it only wind down (RMC)."""
+    tick's output would saturate (Ixx69), and anti-hunting lets it only wind down (RMC).
+
+    `update` takes the tick's terms from ServoLaw.update: the loop error (clipped at Ixx67),
+    the raw error, the feedforward, the measurement and its rate on the velocity-loop encoder
+    (kd's input: velocity in position modes, acceleration in velocity modes)."""
 
     @staticmethod
-    def update(law: ServoLaw, k: _Tick, dt: float) -> float:
+    def update(law: ServoLaw, dt: float, error: float, raw: float, ff: float, meas: float,
+               rate: float, cmd_vel: float, stopped: bool, anti_hunting: bool) -> float:
         c = law.config
-        held = c.integrate_at_rest and k.cmd_vel != 0.0
+        held = c.integrate_at_rest and cmd_vel != 0.0
         il = c.integration_limit
-        i_old = _clamp(law.integral, -il, il)        # Ixx63 may have been lowered
+        i_old = law.integral
+        i_old = -il if i_old < -il else il if i_old > il else i_old   # Ixx63 may have dropped
         i_new = i_old
         if not held:
-            free = _clamp(i_old + c.ki * k.error * dt, -il, il)
+            free = i_old + c.ki * error * dt
+            free = -il if free < -il else il if free > il else free
             i_new = free
-            if k.anti_hunting:
+            if anti_hunting:
                 i_new = db.limit_integral_to_wind_down(i_old, free)
                 held = i_new != free                  # the rule stopped some growth
-        # kd on the velocity-loop encoder's velocity (position modes) or acceleration.
-        loop = c.kp * k.error - c.kd * k.meas_rate
+        loop = c.kp * error - c.kd * rate
+        limit = c.output_limit
         # No integration while the output saturates (PMAC Ixx69): test this tick's output
         # with the integration before committing it (when there is one to test).
-        if i_new != i_old and abs(k.finish(law, law.notch.peek(loop + i_new + k.feedforward))) \
-                >= c.output_limit:
+        if i_new != i_old and abs(_finish(c, law.notch.peek(loop + i_new + ff), raw,
+                                          stopped)) >= limit:
             i_new = i_old
             held = True
         law.integral = i_new
-        out = k.finish(law, law.notch.step(loop + i_new + k.feedforward))
-        law.integrator_held = held or abs(out) >= c.output_limit
+        out = _finish(c, law.notch.step(loop + i_new + ff), raw, stopped)
+        law.integrator_held = held or abs(out) >= limit
         return out
 
 
 class IpdLaw:
     """Delta RMC I-PD, incremental: CO(n) = CO(n−1) + ki·dt·e − kp·Δact − kd·Δ(act rate). The
     state CO carries I, P and D together and is clamped so that CO + feedforward + deadband
-    stays within ±output_limit (anti-windup); anti-hunting restricts only the ki·dt·e term."""
+    stays within ±output_limit (anti-windup); anti-hunting restricts only the ki·dt·e term.
+    `update` takes the same terms as PidLaw.update."""
 
     @staticmethod
-    def update(law: ServoLaw, k: _Tick, dt: float) -> float:
+    def update(law: ServoLaw, dt: float, error: float, raw: float, ff: float, meas: float,
+               rate: float, cmd_vel: float, stopped: bool, anti_hunting: bool) -> float:
         c = law.config
-        prev = k.meas if law.prev_act is None else law.prev_act      # first tick: no step
-        prev_rate = k.meas_rate if law.prev_act_vel is None else law.prev_act_vel
+        prev = meas if law.prev_act is None else law.prev_act      # first tick: no step
+        prev_rate = rate if law.prev_act_vel is None else law.prev_act_vel
         co_old = law.co
-        inc_i = c.ki * dt * k.error
+        inc_i = c.ki * dt * error
         held = False
-        if k.anti_hunting:
+        if anti_hunting:
             wound = db.limit_integral_to_wind_down(co_old, co_old + inc_i)
             held = wound != co_old + inc_i
             inc_i = wound - co_old                    # may only wind down
-        co = co_old + inc_i - c.kp * (k.meas - prev) - c.kd * (k.meas_rate - prev_rate)
-        law.prev_act, law.prev_act_vel = k.meas, k.meas_rate
+        co = co_old + inc_i - c.kp * (meas - prev) - c.kd * (rate - prev_rate)
+        law.prev_act, law.prev_act_vel = meas, rate
         room = max(c.output_limit - c.output_deadband, 0.0)
-        co_clamped = _clamp(co, -room - k.feedforward, room - k.feedforward)
+        co_clamped = _clamp(co, -room - ff, room - ff)
         law.co = law.integral = co_clamped
         law.integrator_held = held or co_clamped != co
-        return k.finish(law, law.notch.step(law.co + k.feedforward))
+        return _finish(c, law.notch.step(law.co + ff), raw, stopped)
 
 
 class ServoLaw:
@@ -152,7 +145,6 @@ class ServoLaw:
         self.saturated = False
         self.integrator_held = False
         self.anti_hunting = False
-        self._tick = _Tick()
         self.config = config or LawConfig.of(axis_defaults(AXIS_REGISTERS))
         self._law: type[PidLaw] | type[IpdLaw] = PidLaw
         self.configure(self.config)
@@ -181,24 +173,24 @@ class ServoLaw:
         """One servo tick. act_pos/act_vel: the position-loop encoder; vel_loop_vel/acc: the
         velocity-loop encoder (same as act_* unless dual loop). Returns the output [V]."""
         c = self.config
-        k = self._tick
         if c.position_mode:
             raw = cmd_pos - act_pos
             lim = c.position_error_limit
-            k.error = _clamp(raw, -lim, lim) if lim > 0.0 else raw      # Ixx67
-            k.meas, k.meas_rate = act_pos, vel_loop_vel
+            error = (-lim if raw < -lim else lim if raw > lim else raw) if lim > 0.0 else raw
+            meas, rate = act_pos, vel_loop_vel                          # (Ixx67 above)
+            # RMC anti-hunting: target stopped and inside the tolerance (or half a count).
+            anti = target_stopped and db.in_anti_hunting_window(
+                target_stopped, raw, c.deadband_tolerance, half_count)
         else:
-            raw = k.error = cmd_vel - act_vel
-            k.meas, k.meas_rate = act_vel, vel_loop_acc
-        k.raw_error = raw
-        k.cmd_vel = cmd_vel
-        k.target_stopped = target_stopped
-        # RMC anti-hunting: target stopped and inside the tolerance (or half a raw count).
-        k.anti_hunting = self.anti_hunting = c.position_mode and db.in_anti_hunting_window(
-            target_stopped, raw, c.deadband_tolerance, half_count)
-        k.feedforward = (c.kvff * cmd_vel + c.kaff * cmd_acc + c.friction_ff * _sign(cmd_vel)
-                         + c.bias)
-        out = self._law.update(self, k, dt)
+            raw = error = cmd_vel - act_vel
+            meas, rate = act_vel, vel_loop_acc
+            anti = False
+        self.anti_hunting = anti
+        # friction_ff by the sign of the commanded velocity, 0 at rest (Ixx68)
+        friction = c.friction_ff if cmd_vel > 0.0 else -c.friction_ff if cmd_vel < 0.0 else 0.0
+        ff = c.kvff * cmd_vel + c.kaff * cmd_acc + friction + c.bias
+        out = self._law.update(self, dt, error, raw, ff, meas, rate, cmd_vel, target_stopped,
+                               anti)
         limit = c.output_limit
         self.saturated = abs(out) >= limit
         out = _clamp(out, -limit, limit)
