@@ -36,6 +36,7 @@ EXECUTABLES = {
     'soak': 'motion_ctrl.tools.soak:main',
     'draw': 'motion_ctrl.tools.draw:main',
     'calibrate': 'motion_ctrl.tools.calibrate:main',
+    'identify': 'motion_ctrl.tools.identify:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

@@ -11,7 +11,7 @@ from msg_defs.topics import (
     AMPLIFIER_STATES, TARGET_POSITION, TARGET_VELOCITY, JOINT_TRAJECTORY, DIAGNOSTICS, CLOCK,
     status_topic,
     amplifier_fault_topic, service_name,
-    SERVICES, motor_joint, load_joint, split_joint,
+    SERVICES, motor_joint, load_joint, split_joint, gather_topic,
 )
 
 # The ROS half (QoS profiles need rclpy, message helpers sensor_msgs) is imported when first
@@ -23,6 +23,8 @@ _LAZY = {
     'MalformedMessage': 'msg_defs.joint_state', 'JointStateStream': 'msg_defs.joint_state',
     'Stream': 'msg_defs.joint_state',
     'joint_trajectory': 'msg_defs.trajectory', 'read_joint_trajectory': 'msg_defs.trajectory',
+    'GATHER_QOS': 'msg_defs.qos', 'gather_message': 'msg_defs.gather',
+    'read_gather': 'msg_defs.gather',
 }
 
 
@@ -44,5 +46,5 @@ __all__ = [
     'load_joint', 'split_joint',
     'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream', 'Stream', 'joint_trajectory',
-    'read_joint_trajectory',
+    'read_joint_trajectory', 'gather_topic', 'GATHER_QOS', 'gather_message', 'read_gather',
 ]

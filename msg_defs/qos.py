@@ -11,7 +11,9 @@ not a backlog, and not the repair of a lost one: a reliable reader holds every l
 until a lost one is resent, which waits for the writer's next heartbeat (up to seconds, measured
 here as feedback faults and targets seen late on a loaded machine). A best-effort reader matches
 a reliable writer; a lost sample is replaced by the next one a period later.
-Status words are reliable + transient local so a late subscriber sees the current word at once.
+Status words are reliable + transient local so a late subscriber sees the current word at once;
+so is the record of an excitation run (GATHER_QOS, the last run only): a reader that joins or
+loses a sample late still gets the whole record, repaired by the reliable protocol.
 """
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
 
@@ -20,5 +22,8 @@ SERVO_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
 SERVO_READ_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
                             history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
 STATUS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                        history=HistoryPolicy.KEEP_LAST,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+GATHER_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -21,6 +21,7 @@ SERVICES = {
     'abort': 'Trigger',
     'reset': 'Trigger',
     'correct': 'Trigger',
+    'excite': 'Trigger',      # start the test signal of the excitation_* registers (gather)
 }
 
 
@@ -55,3 +56,9 @@ def split_joint(name: str):
     if sep and axis and side in ('motor', 'load'):
         return axis, side
     return None, None
+
+
+def gather_topic(axis: str) -> str:
+    """`<axis>/gather`, std_msgs/Float64MultiArray from the controller: the per-tick record of
+    the last excitation run (msg_defs.gather), latched (GATHER_QOS)."""
+    return f'{axis}/gather'

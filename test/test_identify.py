@@ -230,9 +230,14 @@ def test_stepped_sine_response_matches_the_plant():
     g = np.array([(np.linalg.solve(zi * np.eye(4) - ad, bd))[0] for zi in z])
     np.testing.assert_allclose(fr.response / g, 1.0, atol=0.003)
     assert np.all(fr.coherence > 0.99)
-    # On the positions themselves the drift of the free axis spoils the fit (and says so).
+    # On the positions themselves the drift of the free axis spoils the fit, and the coherence
+    # says so: what the drift leaves around each sine's bin is the relative error it makes,
+    # |ΔG/G| ~ sqrt((1 − γ²) / γ²) (here 18 % at γ² 0.965).
     raw = idf.stepped_sine_response(s, s.signal, xm, difference=False)
-    assert np.max(np.abs(raw.response / g - 1.0)) > 0.05 and raw.coherence.min() < 0.5
+    err = np.abs(raw.response / g - 1.0)
+    assert err.max() > 0.05 and raw.coherence.min() < 0.97
+    bound = np.sqrt((1.0 - raw.coherence) / raw.coherence)
+    assert np.all(err[1:] > 0.3 * bound[1:]) and np.all(err < 3.0 * bound + 1e-3)
 
 
 @pytest.mark.parametrize('change, word', [

@@ -40,6 +40,11 @@ as library functions on sampled records (numpy arrays, one sample per servo tick
    WorkBench's Performance Servo Tuner defaults, 45° phase margin and 8 dB gain margin (its
    "stiff" set; 55°/12 dB, 60°/20 dB are its milder ones).
 
+4. The `identify` tool's pieces: :func:`merge` (the runs of a measurement as one response),
+   :func:`friction` (Coulomb and viscous friction from constant-velocity runs both ways),
+   :func:`physical_units` (the fit in kg, N/V, N/m from one known mass or force constant) and
+   :func:`plot_bode`.
+
 Units follow the controller's registers: positions in metres (load-equivalent on the motor
 encoder, as `Axis` converts counts), volts, seconds. No rclpy: the ROS tools that excite the
 loop inside the servo tick and gather the records are not written yet (README, "Tuning an
@@ -61,6 +66,7 @@ __all__ = [
     'TwoMassModel', 'TwoMassFit', 'fit_two_mass',
     'Margins', 'margins', 'pid_response', 'pid_open_loop',
     'GAIN_MARGIN_DB', 'PHASE_MARGIN_DEG',
+    'merge', 'Friction', 'friction', 'physical_units', 'plot_bode',
 ]
 
 #: Kollmorgen WorkBench Performance Servo Tuner's default ("stiff") stability targets.
@@ -68,6 +74,8 @@ GAIN_MARGIN_DB = 8.0
 PHASE_MARGIN_DEG = 45.0
 
 TWO_PI = 2.0 * math.pi
+#: stepped_sine_response: DFT bins each side of a sine's own that give the noise around it
+NOISE_BINS = 4
 
 
 # ================================================================================================
@@ -200,9 +208,13 @@ def stepped_sine_response(excitation, u, y, *, difference=True) -> FrequencyResp
     which leaves G unchanged: a free axis' position drifts away (by far more than the sine's
     amplitude, and not as a polynomial) while its velocity only settles.
 
-    `coherence` is here the share of y's power (its drift removed) in the window that the sine
-    explains (1 = a clean sine; noise, friction harmonics and an unsettled transient lower
-    it).
+    `coherence` is, as Welch's coherence with segments of the window's length would give it,
+    S / (S + N) at the segment's frequency: S the power of the fitted sine in its DFT bin of
+    the window, N the noise in that bin, taken as the mean power of the neighbouring bins of
+    what the fit leaves (``NOISE_BINS`` each side); the lower of u's and y's. A small sine is
+    coherent when the noise around its frequency is smaller still, however much noise (encoder
+    quantisation, friction harmonics) the record holds elsewhere: a stepped sine concentrates
+    the excitation where it measures, a broadband signal spreads it.
     """
     segs = getattr(excitation, 'segments', None)
     if not segs:
@@ -230,10 +242,17 @@ def stepped_sine_response(excitation, u, y, *, difference=True) -> FrequencyResp
         yc = complex(coef[0, 1], -coef[1, 1])
         freq.append(s.frequency)
         resp.append(yc / uc)
-        rest = y[s.measure_start:s.stop] - basis[:, 2:] @ coef[2:, 1]
-        total = float(np.dot(rest, rest))
-        sine = float(np.sum((basis[:, :2] @ coef[:2, 1]) ** 2))
-        share.append(min(1.0, sine / total) if total > 0 else 0.0)
+        rest = np.column_stack([u[s.measure_start:s.stop], y[s.measure_start:s.stop]]) \
+            - basis @ coef
+        spec = np.abs(np.fft.rfft(rest, axis=0)) ** 2
+        k0 = s.cycles                               # the sine's bin (whole cycles)
+        near = [k for k in range(k0 - NOISE_BINS, k0 + NOISE_BINS + 1)
+                if k != k0 and 0 < k < spec.shape[0]]
+        noise = spec[near].mean(axis=0)
+        sig = (n / 2.0 * np.array([abs(uc), abs(yc)])) ** 2
+        with np.errstate(divide='ignore', invalid='ignore'):
+            c = np.where(sig > 0, sig / (sig + noise), 0.0)
+        share.append(float(c.min()))
     return FrequencyResponse(np.array(freq), np.array(resp), np.array(share), fs,
                              'stepped_sine')
 
@@ -619,3 +638,119 @@ def pid_open_loop(freq, registers, servo_period, position_plant, velocity_plant=
                         notch=notch)
     z = np.exp(1j * TWO_PI * np.asarray(freq, dtype=float) * servo_period)
     return z ** (-int(latency_ticks)) * (P * gp + D * gv)
+
+
+# ================================================================================================
+# 4. what the identify tool adds
+
+def merge(responses) -> FrequencyResponse:
+    """Several measured responses (stepped-sine runs over parts of a band) as one, sorted by
+    frequency."""
+    rs = list(responses)
+    if not rs:
+        raise ValueError('merge needs at least one response')
+    f = np.concatenate([r.freq for r in rs])
+    order = np.argsort(f, kind='stable')
+    return FrequencyResponse(f[order], np.concatenate([r.response for r in rs])[order],
+                             np.concatenate([r.coherence for r in rs])[order],
+                             rs[0].sample_rate, rs[0].method)
+
+
+@dataclass(frozen=True)
+class Friction:
+    """V = coulomb·sign(v) + viscous·v + offset, fitted to the mean output [V] of runs at
+    constant velocities v [m/s] both ways: coulomb [V], viscous [V per m/s], offset [V] (a
+    bias or a load that pulls one way, e.g. gravity), rms_residual [V]."""
+    coulomb: float
+    viscous: float
+    offset: float
+    rms_residual: float
+
+
+def friction(velocities, volts) -> Friction:
+    """Coulomb and viscous friction from constant-velocity runs (the mean output of each run at
+    its velocity), by least squares; needs both directions, and two speeds for the viscous
+    part (with one speed each way viscous is 0 and coulomb holds it)."""
+    v = _record('velocities', velocities)
+    u = _record('volts', volts, v.size)
+    if not (np.any(v > 0) and np.any(v < 0)):
+        raise ValueError('friction needs runs in both directions')
+    speeds = np.unique(np.round(np.abs(v), 12))
+    cols = [np.sign(v), np.ones_like(v)] + ([v] if speeds.size > 1 else [])
+    a = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(a, u, rcond=None)
+    res = u - a @ coef
+    viscous = float(coef[2]) if speeds.size > 1 else 0.0
+    return Friction(float(coef[0]), viscous, float(coef[1]), float(np.sqrt(np.mean(res ** 2))))
+
+
+def physical_units(fit: TwoMassFit, *, slide_mass=None, force_per_volt=None) -> dict:
+    """The fit in SI units from ONE absolute reference. The measurement sees only ratios (every
+    mass, the stiffness, the friction and the force per volt scaled alike give the same
+    response): `slide_mass` [kg] (weighed, or from CAD) gives the force per volt as
+    slide_mass / load_inertia, `force_per_volt` [N/V] (amplifier A/V × motor Kt × 2π / lead,
+    from the data sheets) gives the masses. Returns force_per_volt [N/V], motor_mass and
+    slide_mass [kg] (the motor's inertia as a mass at the slide), stiffness [N/m],
+    viscous [N·s/m] (two-mass fit; its pole must be in the band to mean anything)."""
+    if (slide_mass is None) == (force_per_volt is None):
+        raise ValueError('give exactly one of slide_mass and force_per_volt')
+    if slide_mass is not None:
+        fpv = _positive('slide_mass', slide_mass) / fit.load_inertia
+    else:
+        fpv = _positive('force_per_volt', force_per_volt)
+    return dict(force_per_volt=fpv, motor_mass=fit.motor_inertia * fpv,
+                slide_mass=fit.load_inertia * fpv, total_mass=fit.inertia * fpv,
+                stiffness=fit.stiffness * fpv, viscous=fit.viscous * fpv)
+
+
+def _lagging(deg):
+    """Phase in (−360°, 0]: a position response lags (−180° for a double integrator)."""
+    return np.where(deg > 0.0, deg - 360.0, deg)
+
+
+def plot_bode(path, motor: FrequencyResponse, load: FrequencyResponse | None,
+              fit: TwoMassFit | None, *, title: str = '', min_coherence: float = 0.9) -> None:
+    """Bode plot (magnitude, phase, coherence) of the measured responses [m/V], the fitted
+    model over them, points below `min_coherence` drawn hollow (the fit leaves them out)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
+                                           gridspec_kw=dict(height_ratios=[3, 2, 1]))
+    sets = [('motor', motor, 'C0')] + ([('load', load, 'C1')] if load is not None else [])
+    for name, fr, colour in sets:
+        good = fr.coherence >= min_coherence
+        for mask, face in ((good, colour), (~good, 'none')):
+            ax_m.semilogx(fr.freq[mask], fr.magnitude_db()[mask], 'o', ms=4, mfc=face,
+                          mec=colour, label=f'{name}, measured' if face != 'none' else None)
+            ax_p.semilogx(fr.freq[mask], _lagging(fr.phase_deg()[mask]), 'o', ms=4,
+                          mfc=face, mec=colour)
+        ax_c.semilogx(fr.freq, fr.coherence, 'o-', ms=3, color=colour, label=name)
+        if fit is not None:
+            f = np.geomspace(fr.freq.min(), fr.freq.max(), 800)
+            h = fit.response(f, output=name)
+            ax_m.semilogx(f, 20 * np.log10(np.abs(h)), '-', color=colour, lw=1,
+                          label=f'{name}, two-mass fit')
+            ax_p.semilogx(f, _lagging(np.degrees(np.angle(h))), '-', color=colour, lw=1)
+    if fit is not None:
+        for ax in (ax_m, ax_p):
+            ax.axvline(fit.resonance_hz, color='k', ls=':', lw=0.8)
+            ax.axvline(fit.antiresonance_hz, color='grey', ls=':', lw=0.8)
+        ax_m.set_title(f'{title}\nresonance {fit.resonance_hz:.1f} Hz, anti-resonance '
+                       f'{fit.antiresonance_hz:.1f} Hz' if title else
+                       f'resonance {fit.resonance_hz:.1f} Hz')
+    ax_m.set_ylabel('|G| [dB re 1 m/V]')
+    ax_m.legend(fontsize=8)
+    ax_p.set_ylabel('phase [°]')
+    ax_p.set_ylim(-370, 10)
+    ax_p.set_yticks([-360, -270, -180, -90, 0])
+    ax_c.axhline(min_coherence, color='r', lw=0.8, ls='--')
+    ax_c.set_ylabel('coherence')
+    ax_c.set_ylim(0, 1.05)
+    ax_c.set_xlabel('frequency [Hz]')
+    ax_c.legend(fontsize=8)
+    for ax in (ax_m, ax_p, ax_c):
+        ax.grid(True, which='both', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -44,6 +44,7 @@ _BACKLASH = int(Status.BACKLASH_ACTIVE)
 _FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
 _LIMIT = int(Status.LIMIT)
 _CORRECTING = int(Status.CORRECTING)
+_AT_VELOCITY = int(Status.MOTION_AT_VELOCITY)
 
 _S_IDLE = SampledCorrection.IDLE
 _S_CORRECTING = SampledCorrection.CORRECTING
@@ -254,8 +255,9 @@ class Axis(AxisCommands):
             return 0.0
         out = self._servo(sample_dt)
         self._update_status(sample_dt, motor_counts)
-        if self.gather is not None and self.gather.running:
-            return self.gather.inject(out, self)     # (self.output stays the servo law's)
+        g = self.gather
+        if g is not None and g.running:
+            return self._excite(g, out)
         return out
 
     # The stages of the tick, in order.
@@ -339,6 +341,17 @@ class Axis(AxisCommands):
         if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
+
+    def _excite(self, g: Gather, out: float) -> float:
+        """8. The test signal on the output (core.gather; self.output stays the servo law's).
+        On a base motion it starts once the jog is at velocity, and when the run ends (done,
+        or out of budget) the base motion stops."""
+        if g.waiting and self._motion & _AT_VELOCITY:
+            g.begin()
+        out = g.inject(out, self)
+        if not g.running and g.base_velocity and self.profile.target_velocity == g.base_velocity:
+            self.jog(0.0)
+        return out
 
     def _update_open(self) -> float:
         """Loop open: the command follows the actual position so closing it is bumpless."""

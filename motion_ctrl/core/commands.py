@@ -159,13 +159,23 @@ class AxisCommands:
         if self.gather is not None:
             self.gather.end(why)
 
-    def excite(self, excitation, budget: float):
+    def excite(self, excitation, budget: float, base_velocity: float = 0.0):
         """Add `excitation` (motion_ctrl.core.excitation, one value per servo tick) to the servo
-        output from the next tick on, recording every tick (motion_ctrl.core.gather, PMAC's gather).
-        Only enabled and at rest; `budget` [m] of slide travel around here ends it early."""
+        output from the next tick on, recording every tick (motion_ctrl.core.gather, PMAC's
+        gather; Kollmorgen WorkBench's Bode measurement). Only enabled, at rest and with no run
+        in progress; `budget` [m] of slide travel around here ends it early.
+
+        `base_velocity` [m/s] (Beckhoff TwinCAT autotuning's base motion): the axis jogs at it
+        first and the signal starts once MOTION_AT_VELOCITY; at the end the jog decelerates to
+        rest. Refused when its nominal travel (ramps, the settling time and the signal) does
+        not fit in the budget or in the soft limits; at run time the budget keeps the braking
+        distance in hand."""
         reason = self.start_refusal('excitation')
         if reason:
             return False, reason
+        g = self.gather
+        if g is not None and g.running:
+            return False, f'{self.name}: excitation refused: a run is in progress'
         if self.profile.moving or not self.status & _DONE:
             return False, f'{self.name}: excitation refused: the axis moves (wait for MOTION_DONE)'
         if not (_number(budget) and math.isfinite(budget) and budget > 0.0):
@@ -174,7 +184,33 @@ class AxisCommands:
         if abs(excitation.sample_rate - rate) > 1e-9 * rate:
             return False, (f'{self.name}: excitation at {excitation.sample_rate:g} Hz, the servo '
                            f'loop runs at {rate:g} Hz')
-        self.gather = Gather(excitation, budget, self.load_pos, self.r['output_limit'])
+        if not (_number(base_velocity) and math.isfinite(base_velocity)):
+            return False, f'{self.name}: base velocity {base_velocity!r} is not a finite number'
+        v = float(base_velocity)
+        reserve = 0.0
+        if v:
+            if abs(v) > self._max_vel:
+                return False, (f'{self.name}: excitation refused: base velocity {v:g} m/s is '
+                               f'above max_velocity {self._max_vel:g} m/s')
+            # braking at max_acceleration, plus two ticks of travel (as the jog's limit guard)
+            reserve = (limits.stopping_distance(abs(v), 0.0, self._max_acc, self._max_jerk)
+                       + 2.0 * abs(v) * self.servo_period)
+            travel = 2.0 * reserve + abs(v) * (excitation.duration + self.r['settling_time'])
+            if travel > budget:
+                return False, (f'{self.name}: excitation refused: the base motion at {v:g} m/s '
+                               f'travels {travel * 1e3:.4g} mm with its ramps over '
+                               f'{excitation.duration:g} s, more than the travel budget '
+                               f'{budget * 1e3:g} mm')
+            end = self.command_position + math.copysign(travel, v)
+            if not self._soft_lo <= end <= self._soft_hi:
+                return False, (f'{self.name}: excitation refused: the base motion would reach '
+                               f'{end:g} m, outside the soft limits [{self._soft_lo:g}, '
+                               f'{self._soft_hi:g}]')
+            ok, reason = self.jog(v)
+            if not ok:
+                return False, reason
+        self.gather = Gather(excitation, budget, self.load_pos, self.r['output_limit'], v,
+                             reserve)
         return True, ''
 
     def live_change_refusal(self, changes: dict):
@@ -408,6 +444,8 @@ class AxisCommands:
                                  *self._limits())
         self._guard = 0
         self._sticky |= _LIMIT
+        if self.gather is not None:
+            self.gather.end(f'the soft limit {limit - self.sampled_offset:g} m')
         if not planned:              # ruckig refused every plan: brake as hard as allowed
             self.profile.stop(max(decel, self._estop_dec))
             self.settling.start_stop(stop_kind or 'estop')

@@ -22,7 +22,8 @@ a servo tick reads `excitation.at(tick)` and two runs inject exactly the same vo
   of cycles (the frequency is moved to that bin).
 
 Library functions, no rclpy: an axis injects them in its servo tick (`Axis.excite`,
-motion_ctrl.core.gather); the ROS outside is not written yet (README, "Tuning an axis").
+motion_ctrl.core.gather); :func:`from_registers` builds the one an axis's `excitation_*`
+registers describe (the controller's `<axis>/excite` service).
 """
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal as sps
 
-__all__ = ['Excitation', 'Segment', 'log_chirp', 'prbs', 'stepped_sine', 'PRBS_BAND_FRACTION']
+__all__ = ['Excitation', 'Segment', 'log_chirp', 'prbs', 'stepped_sine', 'from_registers',
+           'PRBS_BAND_FRACTION', 'SIGNALS']
 
 #: A PRBS held N ticks is flat to within 3 dB up to this fraction of rate / N
 #: (|sin(π f N / fs) / (N sin(π f / fs))|² = ½ at f ≈ 0.443 fs / N).
@@ -240,3 +242,24 @@ def stepped_sine(amplitude, band, duration, sample_rate, *, points=20, settle_cy
         wave[start:start + s + m] = a * env * np.sin(2.0 * np.pi * fa * k / fs)
         segments.append(Segment(fa, start, start + s, start + s + m, cycles))
     return Excitation('stepped_sine', wave, fs, amp, (lo, hi), segments=segments)
+
+
+#: excitation_signal register value -> the signal's function
+SIGNALS: dict = {'prbs': prbs, 'chirp': log_chirp, 'stepped_sine': stepped_sine}
+
+
+def from_registers(values: dict, sample_rate: float) -> Excitation:
+    """The test signal an axis's registers describe (excitation_signal, _amplitude,
+    _band_low, _band_high, _duration, _points) at the servo rate; ValueError naming the register and
+    what is wrong (a band above the Nyquist frequency, a duration too short for the band)."""
+    kind = values['excitation_signal']
+    if kind not in SIGNALS:
+        raise ValueError(f'excitation_signal: unknown signal {kind!r}, expected one of '
+                         f'{", ".join(SIGNALS)}')
+    extra = {'points': values['excitation_points']} if kind == 'stepped_sine' else {}
+    try:
+        return SIGNALS[kind](values['excitation_amplitude'],
+                             (values['excitation_band_low'], values['excitation_band_high']),
+                             values['excitation_duration'], sample_rate, **extra)
+    except ValueError as e:
+        raise ValueError(f'excitation_* registers ({kind}): {e}') from None

@@ -9,9 +9,14 @@ signals) and records, per tick: the excitation, the total output, both encoders'
 the commanded position: the closed-loop records identify.frequency_response wants (the
 excitation is the instrument: G = S_ry / S_ru).
 
+Optionally on a base motion (Beckhoff TwinCAT's autotuning): the axis jogs at a slow constant
+velocity and the signal starts only once it is MOTION_AT_VELOCITY, so the friction keeps one
+sign and the nut stays on one flank of the backlash gap while the response is measured.
+
 Safety, as for a move: the axis starts one only enabled and at rest (Axis.excite); a STOP,
 ESTOP, ABORT, disable, fault or a new move ends it (the record says why), and so does the slide
-leaving `budget` metres around where it started. Plain Python/numpy, no ROS.
+leaving `budget` metres around where it started (with a base motion, `reserve` — its braking
+distance — is kept in hand, so the slide stops inside the budget). Plain Python/numpy, no ROS.
 """
 from __future__ import annotations
 
@@ -27,11 +32,15 @@ class Gather:
     """One excitation run on one axis. `inject(servo_volts, axis)` each tick while `running`."""
 
     def __init__(self, excitation: Excitation, budget: float, start_load: float,
-                 output_limit: float):
+                 output_limit: float, base_velocity: float = 0.0, reserve: float = 0.0):
         self.excitation = excitation
         self.budget = float(budget)
         self.start_load = float(start_load)
         self.output_limit = float(output_limit)
+        self.base_velocity = float(base_velocity)
+        self.reserve = float(reserve)
+        # With a base motion the signal waits until the axis runs at its velocity (begin()).
+        self.waiting = self.base_velocity != 0.0
         self.records = np.full((excitation.ticks, len(COLUMNS)), np.nan)
         self.tick = 0
         self.ended: str | None = None      # 'done', or why it was cut short
@@ -39,6 +48,10 @@ class Gather:
     @property
     def running(self) -> bool:
         return self.ended is None
+
+    def begin(self) -> None:
+        """The base motion runs at its velocity: the signal starts at this tick."""
+        self.waiting = False
 
     def end(self, why: str) -> None:
         if self.ended is None:
@@ -53,9 +66,12 @@ class Gather:
         if k >= self.excitation.ticks:
             self.ended = 'done'
             return servo_volts
-        if abs(axis.load_pos - self.start_load) > self.budget:
-            self.ended = (f'the slide left its travel budget of {self.budget * 1e3:g} mm '
-                          f'after {k} of {self.excitation.ticks} ticks')
+        if abs(axis.load_pos - self.start_load) + self.reserve > self.budget:
+            brake = (f' (less {self.reserve * 1e3:.3g} mm to brake)' if self.reserve else '')
+            self.ended = (f'the slide left its travel budget of {self.budget * 1e3:g} mm'
+                          f'{brake} after {k} of {self.excitation.ticks} ticks')
+            return servo_volts
+        if self.waiting:
             return servo_volts
         e = self.excitation.at(k)
         limit = self.output_limit

@@ -268,6 +268,34 @@ AXIS_REGISTERS = (
        'moves per move (a reversal inside the gap can take one per count of backlash, twice '
        'over when the slide overshoots: 28 in the headline, 50 and more over DDS).', '',
        min=0, max=1000),
+    # The test signal of <axis>/excite (motion_ctrl.core.excitation, .gather): read when the
+    # service starts a run; a change applies to the next run, never to one in progress.
+    _r('excitation_signal', 'string', 'prbs', '', '<axis>/excite: the test signal added to '
+       'the servo output: prbs (maximum-length sequence), chirp (logarithmic sine sweep) or '
+       'stepped_sine (20 frequencies, whole cycles each).',
+       'Kollmorgen WorkBench Bode excitation, PMAC / Galil sine sweep',
+       choices=('prbs', 'chirp', 'stepped_sine')),
+    _r('excitation_amplitude', 'double', 0.5, 'V', '<axis>/excite: peak of the test signal '
+       '(the sum with the servo output stays within output_limit).',
+       'WorkBench excitation amplitude', min=0.0, max=10.0, min_exclusive=True),
+    _r('excitation_band_low', 'double', 5.0, 'Hz', '<axis>/excite: low end of the band.', '',
+       min=0.0, min_exclusive=True),
+    _r('excitation_band_high', 'double', 400.0, 'Hz', '<axis>/excite: high end of the band '
+       '(at most half the servo rate; > excitation_band_low).', '', min=0.0,
+       min_exclusive=True),
+    _r('excitation_duration', 'double', 4.0, 's', '<axis>/excite: length of the test signal; '
+       'every servo tick of it is recorded and published on <axis>/gather.',
+       'PMAC gather buffer length', min=0.0, max=600.0, min_exclusive=True),
+    _r('excitation_points', 'integer', 20, 'count', '<axis>/excite, stepped_sine: frequencies, '
+       'log-spaced over the band, the duration shared among them.', '', min=1, max=1000),
+    _r('excitation_budget', 'double', 0.005, 'm', '<axis>/excite: travel budget: the run ends '
+       '(and a base motion brakes) before the slide gets further than this from where it '
+       'started, braking distance included.', '', min=0.0, min_exclusive=True),
+    _r('excitation_velocity', 'double', 0.0, 'm/s', '<axis>/excite: base motion under the '
+       'test signal, a jog at this velocity (sign = direction; 0 = none): stiction and the '
+       'backlash gap stay out of the measurement. The signal starts once the axis is '
+       'MOTION_AT_VELOCITY; |velocity| <= max_velocity.', 'Beckhoff TwinCAT autotuning base '
+       'motion', min=-10.0, max=10.0),
 )
 
 CONTROLLER_AXIS = {r.name: r for r in AXIS_REGISTERS}
@@ -315,6 +343,10 @@ AXIS_RULES = (
      'following_error_warning must be <= following_error_fatal '
      f'({v["following_error_warning"]:g} > {v["following_error_fatal"]:g})'),
     (('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2'), _notch_rule),
+    (('excitation_band_low', 'excitation_band_high'), lambda v: None
+     if v['excitation_band_high'] > v['excitation_band_low'] else
+     'excitation_band_high must be > excitation_band_low '
+     f'({v["excitation_band_high"]:g} <= {v["excitation_band_low"]:g} Hz)'),
 )
 
 

@@ -18,6 +18,11 @@ clock is applied at the first tick at or after that stamp (a coordinated start o
 or a move at an exact sim time); other targets apply at once. A `joint_trajectory`
 (trajectory_msgs/JointTrajectory) is checked as a whole and run on all its axes on one time base
 (`ServoLoop.trajectory`, PMAC PVT); its header stamp schedules it the same way.
+
+`<axis>/excite` starts the test signal the axis's excitation_* registers describe
+(`ServoLoop.excite`, PMAC gather / WorkBench Bode); when the run ends the whole per-tick record
+is published once, latched, on `<axis>/gather` (msg_defs.gather), built and sent on a thread of
+its own so the servo tick only hands it over.
 """
 from __future__ import annotations
 
@@ -32,7 +37,7 @@ import rclpy
 from rclpy.duration import Duration
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import UInt32
+from std_msgs.msg import Float64MultiArray, UInt32
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 from diagnostic_msgs.msg import DiagnosticArray
@@ -42,6 +47,7 @@ from motion_ctrl.ros import ros_env, ros_params
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
+from motion_ctrl.core.gather import COLUMNS
 from motion_ctrl.core.servo_loop import ServoLoop
 from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
                                    CONTROLLER_GLOBAL, consistency)
@@ -112,6 +118,13 @@ class ControllerNode(ros_params.RegisterNode):
                                  10, raw=True)
         if not self.sim_time:
             threading.Thread(target=self._prepare_loop, name='trajectories', daemon=True).start()
+        # Excitation runs: numbered per axis; a finished one's record goes out on a thread.
+        self.pub_gather = {a: self.stream(Float64MultiArray, md.gather_topic(a), md.GATHER_QOS)
+                           for a in self.axis_names}
+        self.runs = {a: 0 for a in self.axis_names}
+        self.run_meta: dict[str, dict] = {}
+        self.gathers: queue.SimpleQueue = queue.SimpleQueue()     # (axis, Gather, meta)
+        threading.Thread(target=self._gather_loop, name='gather', daemon=True).start()
         for a in self.axis_names:
             self._make_services(a)
 
@@ -296,6 +309,36 @@ class ControllerNode(ros_params.RegisterNode):
         self.create_service(Trigger, md.service_name(a, 'abort'), trigger(axis.abort))
         self.create_service(Trigger, md.service_name(a, 'reset'), trigger(axis.reset))
         self.create_service(Trigger, md.service_name(a, 'correct'), trigger(axis.correct))
+        self.create_service(Trigger, md.service_name(a, 'excite'),
+                            trigger(lambda: self._excite(a)))
+
+    def _excite(self, a: str):
+        """<axis>/excite: start a run; the answer names it (its number is in the record)."""
+        ok, reason = self.loop.excite(a)
+        if not ok:
+            return False, reason
+        self.runs[a] += 1
+        g = self.axes[a].gather
+        assert g is not None                     # (accepted: the run is there)
+        e, r = g.excitation, self.loop.values[a]
+        meta = dict(run=self.runs[a], signal=r['excitation_signal'], amplitude=e.amplitude,
+                    band=[float(e.band[0]), float(e.band[1])], duration=e.duration,
+                    velocity=g.base_velocity, budget=g.budget, rate=e.sample_rate)
+        self.run_meta[a] = meta
+        text = (f'{a}: run {meta["run"]}: {meta["signal"]} {e.amplitude:g} V, {e.band[0]:g}-'
+                f'{e.band[1]:g} Hz, {e.ticks} ticks, base velocity {g.base_velocity:g} m/s, '
+                f'budget {g.budget:g} m; the record comes on {md.gather_topic(a)}')
+        self.get_logger().info(text)
+        return True, text
+
+    def _gather_loop(self) -> None:
+        while True:
+            a, g, meta = self.gathers.get()
+            rec = g.records[:g.tick]
+            msg = md.gather_message(rec, COLUMNS, meta | dict(ended=g.ended, ticks=int(g.tick)))
+            self.pub_gather[a].send(msg)
+            self.get_logger().info(f'{a}: run {meta["run"]} ended ({g.ended}): {g.tick} ticks '
+                                   f'published on {md.gather_topic(a)}')
 
     # -- the servo tick -------------------------------------------------------------------------
     def _tick(self, stamp_msg=None) -> None:
@@ -326,6 +369,9 @@ class ControllerNode(ros_params.RegisterNode):
             self.pub_motor.publish(stamp, names, [x.motor_pos for x in ax],
                                    [x.motor_vel for x in ax])
         for a, axis in self.axes.items():
+            g = axis.gather
+            if g is not None and g.ended is not None and a in self.run_meta:
+                self.gathers.put((a, g, self.run_meta.pop(a)))    # published off the tick
             s = int(axis.status)
             if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
                 self.pub_status[a].send(UInt32(data=s))

@@ -123,23 +123,25 @@ class AxisUnderTest:
                                    f'(status {Status(word or 0)!r})')
         self.move(position, timeout)
 
-    def read_load(self, dwell: int, average: int, timeout: float = 10.0) -> float:
-        """The load encoder at rest: `dwell` joint_states samples skipped after MOTION_DONE,
-        the mean of the next `average` [m]. Counted in samples, not seconds, so the reading is
-        the same in real time and in lockstep simulation."""
+    def samples(self, count: int, timeout: float = 10.0) -> list:
+        """The next `count` joint_states messages (decoded)."""
         from rclpy.serialization import deserialize_message
         self._raw.clear()
         self._collect = True
         try:
-            if not self.client.spin_until(lambda: len(self._raw) >= dwell + average, timeout):
-                raise CalibrationError(f'joint_states: {len(self._raw)} of {dwell + average} '
+            if not self.client.spin_until(lambda: len(self._raw) >= count, timeout):
+                raise CalibrationError(f'joint_states: {len(self._raw)} of {count} '
                                        f'samples in {timeout:g} s')
         finally:
             self._collect = False
-        values = []
-        for data in self._raw[dwell:dwell + average]:
-            msg = deserialize_message(data, self._type)
-            values.append(msg.position[list(msg.name).index(self.axis)])
+        return [deserialize_message(data, self._type) for data in self._raw[:count]]
+
+    def read_load(self, dwell: int, average: int, timeout: float = 10.0) -> float:
+        """The load encoder at rest: `dwell` joint_states samples skipped after MOTION_DONE,
+        the mean of the next `average` [m]. Counted in samples, not seconds, so the reading is
+        the same in real time and in lockstep simulation."""
+        values = [msg.position[list(msg.name).index(self.axis)]
+                  for msg in self.samples(dwell + average, timeout)[dwell:]]
         return float(np.mean(values))
 
 

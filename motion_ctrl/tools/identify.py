@@ -1,0 +1,401 @@
+"""`identify`: measure an axis over ROS, fit the two-mass model, write a Bode plot (the ROS shell
+of motion_ctrl/analysis/identify.py; Kollmorgen WorkBench's Bode measurement, Beckhoff TwinCAT's
+base motion, PMAC's gather).
+
+It talks to the controller like any ROS user, so it works against any plant on the `command` /
+`encoders` topics: registers through the parameter services, runs started with `<axis>/excite`,
+each run's every servo tick read back from the latched `<axis>/gather` (no sample lost to DDS),
+friction from `target_velocity` jogs and the output [V] in `joint_states`. It never reads
+`plant_states`.
+
+The measurement, with the loop closed as the axis is tuned (the excitation is the instrument,
+G = S_ry / S_ru, so the feedback does not bias it):
+
+1. friction: jogs at ±v and ±2v; the mean output at constant velocity is
+   coulomb·sign(v) + viscous·v + offset (analysis.identify.friction);
+2. a stepped sine over the band on a slow base motion (the nut stays on one flank of the
+   backlash, the friction keeps its sign), volts -> motor and -> load position;
+3. a second stepped sine, denser and smaller, around the resonance the first one found (a
+   slide held against its nut by friction alone lifts off it when it vibrates harder than
+   friction / mass: the amplitude there is kept low, the dwell long);
+4. the two-mass fit over the points whose coherence reaches 0.9, with 0, 1 or 2 ticks of
+   delay (the best), and, from one absolute reference (--slide-mass or --force-per-volt: the
+   response alone fixes only ratios), the masses in kg and the amplifier's force per volt.
+
+`--spawn` starts the simulated slide itself (as `calibrate`), `--lockstep` as the lockstep
+simulation, `--plant NAME:=VALUE` changes it.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+from motion_ctrl.analysis import identify as idf
+from motion_ctrl.core import excitation as ex
+
+EXCITATION_REGISTERS = ('excitation_signal', 'excitation_amplitude', 'excitation_band_low',
+                        'excitation_band_high', 'excitation_duration', 'excitation_points',
+                        'excitation_budget', 'excitation_velocity')
+MIN_COHERENCE = 0.9
+FINE_BAND = (0.8, 1.1)        # the second run, around the first run's resonance
+
+
+class IdentifyError(RuntimeError):
+    pass
+
+
+class Excitation:
+    """Runs on one axis of a running controller: registers set, <axis>/excite, the record
+    from <axis>/gather."""
+
+    def __init__(self, axis_under_test):
+        from std_msgs.msg import Float64MultiArray
+        import msg_defs as md
+        self.axis = axis_under_test
+        self.client = axis_under_test.client
+        self.records: dict[int, tuple] = {}          # run -> (columns, meta)
+        # Subscribed once, now (a reader joining later holds the controller up, README Notes);
+        # latched: a record that is late or resent still arrives whole.
+        self.client.create_subscription(Float64MultiArray, md.gather_topic(self.axis.axis),
+                                        self._on_gather, md.GATHER_QOS)
+
+    def _on_gather(self, msg) -> None:
+        import msg_defs as md
+        try:
+            columns, meta = md.read_gather(msg)
+        except ValueError:
+            return
+        self.records[int(meta.get('run', -1))] = (columns, meta)
+
+    def run(self, settings: dict, timeout: float) -> tuple[dict, dict]:
+        """Set the excitation_* registers, start the run, return its record ({column: array},
+        meta) once it has ended."""
+        from std_srvs.srv import Trigger
+        import re
+        self.axis.set(settings)
+        name = self.axis.axis
+        cli = self.client.axis_services[(name, 'excite')]
+        if not self.client.spin_until(cli.service_is_ready, 10.0):
+            raise IdentifyError(f'{name}/excite is not there')
+        # Not resent: a second request while the run goes would only be refused.
+        reply = self.client.answer(lambda: cli.call_async(Trigger.Request()), 10.0,
+                                   resend_after=10.0)
+        if not reply.success:
+            raise IdentifyError(f'{name}/excite refused: {reply.message}')
+        found = re.search(r'run (\d+)', reply.message)
+        if found is None:
+            raise IdentifyError(f'{name}/excite answered without a run number: {reply.message}')
+        run = int(found.group(1))
+        if not self.client.spin_until(lambda: run in self.records, timeout):
+            raise IdentifyError(f'run {run}: no record on {name}/gather within {timeout:g} s')
+        columns, meta = self.records.pop(run)
+        if meta.get('ended') != 'done':
+            raise IdentifyError(f'run {run} ended early: {meta.get("ended")}')
+        return columns, meta
+
+
+def stepped(amplitude, band, points, dwell, velocity, rate) -> tuple[dict, ex.Excitation]:
+    """The registers of a stepped-sine run on a base motion, and the signal they give (the
+    controller builds the same from them: excitation.from_registers)."""
+    duration = points * dwell
+    settings = dict(excitation_signal='stepped_sine', excitation_amplitude=float(amplitude),
+                    excitation_band_low=float(band[0]), excitation_band_high=float(band[1]),
+                    excitation_duration=float(duration), excitation_points=int(points),
+                    excitation_velocity=float(velocity),
+                    # the base motion, its ramps and a margin for the vibration
+                    excitation_budget=float(abs(velocity) * (duration + 1.0) + 0.005))
+    return settings, ex.from_registers(settings, rate)
+
+
+def measure(run, settings, signal, timeout):
+    """(motor, load) responses of one stepped-sine run."""
+    columns, meta = run(settings, timeout)
+    n = signal.ticks
+    if columns['excitation'].size != n or not np.allclose(columns['excitation'], signal.signal):
+        raise IdentifyError(f'run {meta.get("run")}: the recorded excitation is not the signal '
+                            'its registers describe')
+    u = columns['output']
+    return (idf.stepped_sine_response(signal, u, columns['motor']),
+            idf.stepped_sine_response(signal, u, columns['load']))
+
+
+def best_fit(motor, load, band):
+    """The two-mass fit with the whole ticks of delay (0-2) that fit best."""
+    fits = []
+    for delay in (0, 1, 2):
+        try:
+            f = idf.fit_two_mass(motor, load, band=band, min_coherence=MIN_COHERENCE,
+                                 delay_ticks=delay)
+        except ValueError as e:
+            last = e
+            continue
+        fits.append((f.rms_error_db + f.rms_error_deg / 10.0, delay, f))
+    if not fits:
+        raise IdentifyError(f'no fit: {last}')
+    return min(fits, key=lambda x: x[:2])[2]
+
+
+def friction_runs(axis, client, speeds, samples, timeout=10.0, log=print):
+    """Jog at each speed both ways (+v, -v: back where it started), mean output and velocity at
+    constant velocity (MOTION_AT_VELOCITY) over `samples` joint_states."""
+    import msg_defs as md
+    from msg_defs.status import Status
+    name = axis.axis
+    velocities, volts = [], []
+    for speed in speeds:
+        for v in (speed, -speed):
+            client.pub_velocity.publish(md.joint_state(client.get_clock().now().to_msg(),
+                                                       [name], velocity=[v]))
+            mark = len(client.status_log[name])
+            at = client.spin_until(lambda: any(w & Status.MOTION_AT_VELOCITY for _, w in
+                                               client.status_log[name][mark:]), timeout)
+            if not at:
+                raise IdentifyError(f'jog at {v:g} m/s: not MOTION_AT_VELOCITY within '
+                                    f'{timeout:g} s (status {Status(client.status[name] or 0)!r})')
+            msgs = axis.samples(samples, timeout)
+            i = list(msgs[0].name).index(name)
+            velocities.append(float(np.mean([m.velocity[i] for m in msgs])))
+            volts.append(float(np.mean([m.effort[i] for m in msgs])))
+            stop = md.joint_state(client.get_clock().now().to_msg(), [name], velocity=[0.0])
+            if client._send_and_wait(client.pub_velocity, stop, [name], timeout) is None:
+                raise IdentifyError(f'jog at {v:g} m/s: no MOTION_DONE after the stop')
+            log(f'identify: jog {v * 1e3:+.1f} mm/s: mean output {volts[-1]:+.4f} V')
+    return idf.friction(velocities, volts), velocities, volts
+
+
+def identify(axis, args, out: pathlib.Path, log=print) -> dict:
+    """The whole measurement on an axis of a ready controller; returns what it found and wrote."""
+    from motion_ctrl.ros.client import FAULTS
+    from msg_defs.status import Status
+    client = axis.client
+    word = client.status[args.axis] or 0
+    if word & FAULTS or not word & Status.ENABLED:
+        raise IdentifyError(f'axis {args.axis} is not ready ({Status(word)!r}): reset and '
+                            f'enable it first ({args.axis}/reset, {args.axis}/enable)')
+    regs = axis.get(*EXCITATION_REGISTERS)
+    rate = args.servo_rate
+    lo, hi = args.band
+    if not 0 < lo < hi < rate / 2:
+        raise IdentifyError(f'--band {lo:g},{hi:g}: must be 0 < low < high < {rate / 2:g} Hz '
+                            '(half the servo rate)')
+    runner = Excitation(axis)
+    t0 = time.monotonic()
+    try:
+        fr, vels, volts = friction_runs(axis, client, (args.velocity, 2 * args.velocity),
+                                        args.friction_samples, log=log)
+        settings, coarse = stepped(args.amplitude, (lo, hi), args.points, args.dwell,
+                                   args.velocity, rate)
+        log(f'identify: run 1: stepped sine {args.amplitude:g} V, {lo:g}-{hi:g} Hz, '
+            f'{args.points} points x {args.dwell:g} s on {args.velocity * 1e3:g} mm/s')
+        m1, l1 = measure(runner.run, settings, coarse, coarse.duration + 30.0)
+        first = best_fit(m1, l1, (lo, hi))
+        f_lo = max(lo, FINE_BAND[0] * first.resonance_hz)
+        f_hi = min(0.95 * rate / 2, FINE_BAND[1] * first.resonance_hz)
+        settings, fine = stepped(args.fine_amplitude, (f_lo, f_hi), args.fine_points,
+                                 args.fine_dwell, -args.velocity, rate)
+        log(f'identify: run 2: stepped sine {args.fine_amplitude:g} V, {f_lo:.1f}-{f_hi:.1f} Hz '
+            f'(around {first.resonance_hz:.1f} Hz), {args.fine_points} points x '
+            f'{args.fine_dwell:g} s on {-args.velocity * 1e3:g} mm/s')
+        m2, l2 = measure(runner.run, settings, fine, fine.duration + 30.0)
+    finally:
+        axis.set({k: regs[k] for k in EXCITATION_REGISTERS})
+    motor, load = idf.merge([m1, m2]), idf.merge([l1, l2])
+    fit = best_fit(motor, load, (lo, hi))
+    seconds = time.monotonic() - t0
+    ref = {}
+    if args.slide_mass is not None:
+        ref = dict(slide_mass=args.slide_mass)
+    elif args.force_per_volt is not None:
+        ref = dict(force_per_volt=args.force_per_volt)
+    si = idf.physical_units(fit, **ref) if ref else {}
+    used = motor.select((lo, hi), MIN_COHERENCE) | load.select((lo, hi), MIN_COHERENCE)
+    inband = motor.select((lo, hi))
+    both = np.maximum(motor.coherence, load.coherence)
+    result = dict(
+        resonance_hz=fit.resonance_hz, resonance_damping=fit.resonance_damping,
+        antiresonance_hz=fit.antiresonance_hz,
+        antiresonance_damping=fit.antiresonance_damping,
+        accel_per_volt=fit.accel_per_volt, inertia=fit.inertia, motor_inertia=fit.motor_inertia,
+        load_inertia=fit.load_inertia, inertia_ratio=fit.inertia_ratio,
+        stiffness=fit.stiffness, delay_ticks=fit.delay_ticks, points=fit.points,
+        frequencies=int(np.count_nonzero(inband)), band=[float(lo), float(hi)],
+        coherence_min=float(both[inband].min()),
+        coherent_fraction=float(np.count_nonzero(used & inband) / np.count_nonzero(inband)),
+        rms_error_db=fit.rms_error_db, rms_error_deg=fit.rms_error_deg,
+        coulomb=fr.coulomb, viscous=fr.viscous, friction_offset=fr.offset,
+        seconds=seconds)
+    if si:
+        fpv = si['force_per_volt']
+        result |= dict(force_per_volt=fpv, motor_mass=si['motor_mass'],
+                       slide_mass=si['slide_mass'], stiffness_n_per_m=si['stiffness'],
+                       coulomb_n=fr.coulomb * fpv, viscous_n_s_per_m=fr.viscous * fpv)
+        if args.lead is not None:
+            result['motor_inertia_kg_m2'] = si['motor_mass'] * (args.lead / (2 * math.pi)) ** 2
+            if args.torque_constant is not None:
+                result['amplifier_gain'] = fpv * args.lead / (2 * math.pi) / args.torque_constant
+    result = {k: (float(v) if isinstance(v, (float, np.floating)) else v)
+              for k, v in result.items()}
+    report = format_report(result, ref)
+    log(report)
+    import yaml
+    (out / 'identify.yaml').write_text(yaml.safe_dump(result, sort_keys=False))
+    (out / 'report.md').write_text(report + '\n')
+    png = out / 'bode.png'
+    idf.plot_bode(png, motor, load, fit, min_coherence=MIN_COHERENCE,
+                  title=f'axis {args.axis}: volts -> motor and load position, loop closed '
+                        f'(stepped sine on a {args.velocity * 1e3:g} mm/s base motion)')
+    log(f'identify: wrote {out / "identify.yaml"}, {out / "report.md"} and {png} '
+        f'({seconds:.1f} s)')
+    return result
+
+
+def format_report(r: dict, ref: dict) -> str:
+    rows = [('resonance', f'{r["resonance_hz"]:.1f}', 'Hz',
+             f'damping {r["resonance_damping"]:.3f}'),
+            ('anti-resonance', f'{r["antiresonance_hz"]:.1f}', 'Hz',
+             f'damping {r["antiresonance_damping"]:.3f}'),
+            ('total inertia (kaff)', f'{r["inertia"]:.4f}', 'V·s²/m',
+             f'{r["accel_per_volt"]:.3f} m/s² per V'),
+            ('motor-side inertia', f'{r["motor_inertia"]:.4f}', 'V·s²/m', ''),
+            ('slide inertia', f'{r["load_inertia"]:.4f}', 'V·s²/m',
+             f'ratio slide/motor {r["inertia_ratio"]:.3f}'),
+            ('stiffness', f'{r["stiffness"]:.4g}', 'V/m', ''),
+            ('Coulomb friction', f'{r["coulomb"]:.4f}', 'V', 'jogs both ways'),
+            ('viscous friction', f'{r["viscous"]:.4f}', 'V·s/m', 'jogs at two speeds'),
+            ('delay', f'{r["delay_ticks"]}', 'ticks', 'best fit')]
+    if 'force_per_volt' in r:
+        how = ('from --slide-mass' if 'slide_mass' in ref else 'given (--force-per-volt)')
+        rows += [('amplifier force per volt', f'{r["force_per_volt"]:.3f}', 'N/V', how),
+                 ('motor-side inertia', f'{r["motor_mass"]:.3f}', 'kg', 'as a mass at the slide'),
+                 ('slide mass', f'{r["slide_mass"]:.3f}', 'kg', ''),
+                 ('stiffness', f'{r["stiffness_n_per_m"]:.4g}', 'N/m', ''),
+                 ('Coulomb friction', f'{r["coulomb_n"]:.3f}', 'N', ''),
+                 ('viscous friction', f'{r["viscous_n_s_per_m"]:.2f}', 'N·s/m', '')]
+        if 'motor_inertia_kg_m2' in r:
+            rows.append(('motor inertia', f'{r["motor_inertia_kg_m2"]:.4g}', 'kg·m²',
+                         'with --lead'))
+        if 'amplifier_gain' in r:
+            rows.append(('amplifier gain', f'{r["amplifier_gain"]:.4f}', 'A/V',
+                         'with --torque-constant'))
+    lines = ['| quantity | value | unit | note |', '|---|---:|---|---|']
+    lines += [f'| {a} | {b} | {c} | {d} |' for a, b, c, d in rows]
+    lines.append(f'\nfit over {r["points"]} points (motor and load) with coherence >= '
+                 f'{MIN_COHERENCE:g} in {r["band"][0]:g}-{r["band"][1]:g} Hz; '
+                 f'{r["coherent_fraction"] * 100:.0f} % of the {r["frequencies"]} frequencies '
+                 f'measured coherently on motor or load (lowest of the better one '
+                 f'{r["coherence_min"]:.3f}); residual {r["rms_error_db"]:.2f} dB, '
+                 f'{r["rms_error_deg"]:.1f}° rms')
+    return '\n'.join(lines)
+
+
+def _pair(text: str) -> tuple[float, float]:
+    lo, _, hi = text.partition(',')
+    return float(lo), float(hi)
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog='identify', description='Measure an axis through the running controller (loop '
+        'closed, stepped sine on a slow base motion, every servo tick gathered), fit the '
+        'two-mass model, print it and write a Bode plot.')
+    ap.add_argument('--axis', default='x')
+    ap.add_argument('--band', type=_pair, default=(20.0, 400.0), metavar='LO,HI',
+                    help='frequency band [Hz] (default 20,400)')
+    ap.add_argument('--amplitude', type=float, default=0.05,
+                    help='run 1 amplitude [V] (default 0.05)')
+    ap.add_argument('--points', type=int, default=48, help='run 1 frequencies (default 48)')
+    ap.add_argument('--dwell', type=float, default=0.5,
+                    help='run 1 time per frequency [s] (default 0.5)')
+    ap.add_argument('--fine-amplitude', type=float, default=0.03,
+                    help='run 2 (around the resonance) amplitude [V] (default 0.03)')
+    ap.add_argument('--fine-points', type=int, default=16, help='run 2 frequencies (16)')
+    ap.add_argument('--fine-dwell', type=float, default=1.0,
+                    help='run 2 time per frequency [s] (default 1.0)')
+    ap.add_argument('--velocity', type=float, default=0.01,
+                    help='base motion [m/s] (run 1 forward, run 2 back; friction jogs at it '
+                    'and twice it; default 0.01)')
+    ap.add_argument('--friction-samples', type=int, default=300,
+                    help='joint_states samples averaged per friction jog (default 300)')
+    ref = ap.add_mutually_exclusive_group()
+    ref.add_argument('--slide-mass', type=float, default=None,
+                     help='the slide\'s mass [kg], the one absolute reference: masses in kg, '
+                     'the amplifier\'s force per volt')
+    ref.add_argument('--force-per-volt', type=float, default=None,
+                     help='or the amplifier\'s force per volt [N/V] as the reference')
+    ap.add_argument('--lead', type=float, default=None,
+                    help='screw lead [m/rev]: the motor inertia in kg·m² too')
+    ap.add_argument('--torque-constant', type=float, default=None,
+                    help='motor Kt [N·m/A] (with --lead): the amplifier gain in A/V too')
+    ap.add_argument('--servo-rate', type=float, default=None,
+                    help=argparse.SUPPRESS)     # read from the controller
+    ap.add_argument('-o', '--out', default=None,
+                    help='output directory (default out/identify-<time>)')
+    ap.add_argument('--spawn', action='store_true',
+                    help='start the simulated slide (plant + controller processes) for the run')
+    ap.add_argument('--lockstep', action='store_true',
+                    help='with --spawn: the deterministic lockstep simulation')
+    ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
+                    help='with --spawn: a plant parameter, e.g. x.slide_mass:=10.0')
+    ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
+                    help='with --spawn: a controller parameter')
+    return ap
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    if args.lockstep and not args.spawn:
+        print('identify: --lockstep needs --spawn', file=sys.stderr)
+        return 2
+    bad = [n for n in ('amplitude', 'fine_amplitude', 'dwell', 'fine_dwell', 'velocity')
+           if not getattr(args, n) > 0]
+    bad += [n for n in ('points', 'fine_points', 'friction_samples') if getattr(args, n) < 2]
+    if bad:
+        print(f'identify: --{bad[0].replace("_", "-")} must be > 0 (points, samples: >= 2)',
+              file=sys.stderr)
+        return 2
+    from motion_ctrl.ros import ros_env
+    from motion_ctrl.tools.calibrate import AxisUnderTest, CalibrationError, _spawn
+    ros_env.private_domain()
+    import datetime
+    import rclpy
+    from rclpy.parameter import parameter_value_to_python
+    from motion_ctrl.ros.client import SlideClient
+    out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/identify-%Y%m%d-%H%M%S'))
+    out.mkdir(parents=True, exist_ok=True)
+    if args.lockstep:
+        os.environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'     # as the spawned nodes
+    nodes = _spawn(args, out) if args.spawn else ()
+    rclpy.init()
+    client = SlideClient(axes=(args.axis,), name='identify', truth=False, services=True)
+    axis = AxisUnderTest(client, args.axis)
+    try:
+        if not client.wait_ready(30.0):
+            print(f'identify: the controller is not ready ({client.not_ready()})',
+                  file=sys.stderr)
+            return 1
+        if nodes:
+            import msg_defs as md     # (see calibrate: the plant must read `command` first)
+            client.spin_until(lambda: client.count_subscribers(md.COMMAND) > 0, 20.0)
+            client.spin_until(lambda: False, 1.0)
+        rate = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]
+        args.servo_rate = float(parameter_value_to_python(rate))  # type: ignore[arg-type]
+        identify(axis, args, out)
+    except (IdentifyError, CalibrationError) as e:
+        print(f'identify: {e}', file=sys.stderr)
+        return 1
+    finally:
+        client.destroy_node()
+        rclpy.try_shutdown()
+        for n in reversed(nodes):
+            n.stop()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
