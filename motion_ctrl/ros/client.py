@@ -147,6 +147,12 @@ class SlideClient(Node):
         return self._send_and_wait(self.pub_trajectory, msg, list(names),
                                    max(times) + timeout)
 
+    def stop_jogs(self, axes: list, timeout: float = 5.0):
+        """Jog `axes` to 0 velocity and wait as `move` does (MOTION_DONE at rest)."""
+        msg = md.joint_state(self.get_clock().now().to_msg(), list(axes),
+                             velocity=[0.0] * len(axes))
+        return self._send_and_wait(self.pub_velocity, msg, list(axes), timeout)
+
     def _send_and_wait(self, publisher, msg, axes: list, timeout: float):
         marks = {a: len(self.status_log[a]) for a in axes}
         t0 = time.monotonic()

@@ -162,8 +162,7 @@ def friction_runs(axis, client, speeds, samples, timeout=10.0, log=print):
             i = list(msgs[0].name).index(name)
             velocities.append(float(np.mean([m.velocity[i] for m in msgs])))
             volts.append(float(np.mean([m.effort[i] for m in msgs])))
-            stop = md.joint_state(client.get_clock().now().to_msg(), [name], velocity=[0.0])
-            if client._send_and_wait(client.pub_velocity, stop, [name], timeout) is None:
+            if client.stop_jogs([name], timeout) is None:
                 raise IdentifyError(f'jog at {v:g} m/s: no MOTION_DONE after the stop')
             log(f'identify: jog {v * 1e3:+.1f} mm/s: mean output {volts[-1]:+.4f} V')
     return idf.friction(velocities, volts), velocities, volts
