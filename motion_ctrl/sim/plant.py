@@ -22,7 +22,10 @@ screw's rotation times lead/2π, its equivalent mass J·(2π/lead)². At start-u
 no backlash error and a negative move after it shows the whole gap.
 
 Integration: semi-implicit (symplectic) Euler at `substep_rate` (20 kHz by default, ωT ≈ 0.06 at
-the resonance), which is stable for the contact spring and conserves energy well.
+the resonance), which is stable for the contact spring and conserves energy well. The substeps
+of one step are `_substeps`, a function of floats: it stops early once both masses are stuck and
+held (the rest would change nothing), and its floats are those of running every substep
+(test_plant_kernel.py).
 """
 from __future__ import annotations
 
@@ -38,18 +41,77 @@ _WALL_STIFFNESS = 1e8
 _WALL_DAMPING = 2e4
 
 
-def _friction_step(v, force, mass, viscous, coulomb, stiction, dt):
-    """One Karnopp friction step: new velocity of a mass with `force` (non-friction) applied."""
-    if v == 0.0:
-        if abs(force) <= stiction:
-            return 0.0                      # stays stuck: static friction balances the force
-        f = force - math.copysign(coulomb, force)
-        return f / mass * dt
-    f = force - viscous * v - math.copysign(coulomb, v)
-    v_new = v + f / mass * dt
-    if v_new * v < 0.0 or abs(v_new) < _STICK_SPEED and abs(force) <= stiction:
-        return 0.0                          # friction would reverse it: it stops (and may stick)
-    return v_new
+def _substeps(n, h, x_m, v_m, x_l, v_l, pitch, drive, m_visc, mm, m_coul, m_stic,
+              ml, l_visc, l_coul, l_stic, k, c, b, travel_min, travel_max, brake):
+    """n semi-implicit Euler substeps of h: the new (x_m, v_m, x_l, v_l).
+
+    Each mass gets one Karnopp friction step (written out twice below, for speed: this loop is
+    most of what a simulated servo tick costs): with force F (all but friction) on a mass at
+    rest, it stays stuck while |F| <= stiction, else breaks away against Coulomb friction;
+    moving, viscous + Coulomb friction act, and a step that would reverse the velocity (or
+    leave it below _STICK_SPEED with |F| <= stiction) stops it. `±coulomb by the sign of v` is
+    math.copysign(coulomb, v) for every v that reaches it (v, F ≠ 0 there).
+
+    A substep that starts and ends with both masses stuck (the slide stuck or braked) changes
+    nothing, so every later substep of the step would repeat it exactly: the loop stops there.
+    The result is the same, bit for bit, as running all n.
+    """
+    for _ in range(n):
+        # Contact force nut -> slide (positive pushes the slide positive).
+        d = x_m + pitch - x_l
+        dv = v_m - v_l        # pitch-error slope is tiny: its velocity term is neglected
+        if d > 0.0:
+            fc = k * d + c * dv
+            if not fc > 0.0:
+                fc = 0.0      # the spring-damper only pushes
+        elif d < -b:
+            fc = k * (d + b) + c * dv
+            if not fc < 0.0:
+                fc = 0.0
+        else:
+            fc = 0.0          # in the gap
+        # Motor: Karnopp friction step with force F = drive - fc.
+        f_m = drive - fc
+        if v_m == 0.0:
+            if -m_stic <= f_m <= m_stic:
+                vm_new = 0.0  # stays stuck: static friction balances the force
+            else:
+                vm_new = (f_m - (m_coul if f_m > 0.0 else -m_coul)) / mm * h
+        else:
+            vm_new = v_m + (f_m - m_visc * v_m - (m_coul if v_m > 0.0 else -m_coul)) / mm * h
+            if vm_new * v_m < 0.0 or -_STICK_SPEED < vm_new < _STICK_SPEED \
+                    and -m_stic <= f_m <= m_stic:
+                vm_new = 0.0  # friction would reverse it: it stops (and may stick)
+        # Slide: braked, or a Karnopp step with F = contact + end stop (a stiff damped wall).
+        if brake:
+            f_l = fc
+            vl_new = 0.0
+        else:
+            if x_l > travel_max:
+                f_l = fc + (-_WALL_STIFFNESS * (x_l - travel_max) - _WALL_DAMPING * v_l)
+            elif x_l < travel_min:
+                f_l = fc + (-_WALL_STIFFNESS * (x_l - travel_min) - _WALL_DAMPING * v_l)
+            else:
+                f_l = fc
+            if v_l == 0.0:
+                if -l_stic <= f_l <= l_stic:
+                    vl_new = 0.0
+                else:
+                    vl_new = (f_l - (l_coul if f_l > 0.0 else -l_coul)) / ml * h
+            else:
+                vl_new = v_l + (f_l - l_visc * v_l - (l_coul if v_l > 0.0 else -l_coul)) / ml * h
+                if vl_new * v_l < 0.0 or -_STICK_SPEED < vl_new < _STICK_SPEED \
+                        and -l_stic <= f_l <= l_stic:
+                    vl_new = 0.0
+        if v_m == 0.0 and v_l == 0.0 and vm_new == 0.0 and vl_new == 0.0 \
+                and -m_stic <= f_m <= m_stic and (brake or -l_stic <= f_l <= l_stic):
+            # Both stuck from start to end: this substep only turns a -0.0 position into 0.0
+            # (x + 0.0), and every later one would find the same forces and do nothing.
+            return x_m + 0.0, 0.0, x_l + 0.0, 0.0
+        v_m, v_l = vm_new, vl_new
+        x_m = x_m + v_m * h
+        x_l = x_l + v_l * h
+    return x_m, v_m, x_l, v_l
 
 
 class SlidePlant:
@@ -57,6 +119,8 @@ class SlidePlant:
 
     def __init__(self, substep_rate: float = 20000.0, **params):
         self.substep_rate = substep_rate
+        self._dt = (math.nan, math.nan)  # (dt, substep_rate) of the last step: its substeps
+        self._substep = (1, 0.0)         # (count, length)
         self.params = axis_defaults(PLANT_PARAMETERS)
         self.configure(**params)
         self.x_m = self.v_m = 0.0     # motor side, load-equivalent [m, m/s]
@@ -94,13 +158,20 @@ class SlidePlant:
         self._m_stic = p['motor_stiction'] * self._rad_per_m
         self.motor_counts_per_m = p['motor_counts_per_rev'] / p['lead']
         self.load_counts_per_m = 1.0 / p['load_resolution']
+        # What a step reads, looked up once here (params change only through configure).
+        self._pitch = (p['pitch_error_slope'], p['pitch_error_amplitude'],
+                       p['pitch_error_period'])
+        self._limit = p['amplifier_limit']
+        self._constants = (self.motor_mass, self._m_coul, self._m_stic, p['slide_mass'],
+                           p['slide_viscous'], p['slide_coulomb'], p['slide_stiction'],
+                           p['screw_stiffness'], p['screw_damping'], p['backlash'],
+                           p['travel_min'], p['travel_max'], p['brake'] == 1)
 
     # -- derived quantities -------------------------------------------------------------------
     def pitch_error(self, x_m: float) -> float:
         """Displacement of the nut from the ideal screw position at motor position x_m [m]."""
-        p = self.params
-        return (p['pitch_error_slope'] * x_m
-                + p['pitch_error_amplitude'] * math.sin(TWO_PI * x_m / p['pitch_error_period']))
+        slope, amplitude, period = self._pitch
+        return slope * x_m + amplitude * math.sin(TWO_PI * x_m / period)
 
     @property
     def resonance_hz(self) -> float:
@@ -151,46 +222,19 @@ class SlidePlant:
     def step(self, volts: float, dt: float, braking: bool = False) -> None:
         """Advance the physics by dt with `volts` on the amplifier input (no watchdog);
         `braking`: the dynamic brake is closed."""
-        if not math.isfinite(volts):
-            volts = 0.0               # a broken command never reaches the motor
-        p = self.params
-        lim = p['amplifier_limit']
-        volts = min(lim, max(-lim, volts))
-        self.volts = volts
-        n = max(1, math.ceil(dt * self.substep_rate - 1e-9))
-        h = dt / n
-        drive = self._force_per_volt * volts
-        k, c, b = p['screw_stiffness'], p['screw_damping'], p['backlash']
-        mm, ml = self.motor_mass, p['slide_mass']
-        brake = p['brake'] == 1
-        m_visc = self._m_visc_braked if braking else self._m_visc
+        lim = self._limit
+        if not -lim <= volts <= lim:  # (a nan fails this test too)
+            volts = 0.0 if not math.isfinite(volts) else lim if volts > 0.0 else -lim
+        self.volts = volts            # a broken command never reaches the motor; others clipped
+        if (dt, self.substep_rate) != self._dt:
+            n = max(1, math.ceil(dt * self.substep_rate - 1e-9))
+            self._dt, self._substep = (dt, self.substep_rate), (n, dt / n)
+        n, h = self._substep
+        x_m = self.x_m
         # The pitch error changes by nanometres within one step: evaluated once per step.
-        pitch = self.pitch_error(self.x_m)
-        for _ in range(n):
-            x_m, v_m, x_l, v_l = self.x_m, self.v_m, self.x_l, self.v_l
-            # Contact force nut -> slide (positive pushes the slide positive).
-            d = x_m + pitch - x_l
-            dv = v_m - v_l        # pitch-error slope is tiny: its velocity term is neglected
-            if d > 0.0:
-                fc = max(0.0, k * d + c * dv)
-            elif d < -b:
-                fc = min(0.0, k * (d + b) + c * dv)
-            else:
-                fc = 0.0
-            fw = 0.0
-            if x_l > p['travel_max']:
-                fw = -_WALL_STIFFNESS * (x_l - p['travel_max']) - _WALL_DAMPING * v_l
-            elif x_l < p['travel_min']:
-                fw = -_WALL_STIFFNESS * (x_l - p['travel_min']) - _WALL_DAMPING * v_l
-            v_m = _friction_step(v_m, drive - fc, mm, m_visc, self._m_coul,
-                                 self._m_stic, h)
-            if brake:
-                v_l = 0.0
-            else:
-                v_l = _friction_step(v_l, fc + fw, ml, p['slide_viscous'], p['slide_coulomb'],
-                                     p['slide_stiction'], h)
-            self.x_m = x_m + v_m * h
-            self.v_m = v_m
-            self.x_l = x_l + v_l * h
-            self.v_l = v_l
+        slope, amplitude, period = self._pitch
+        pitch = slope * x_m + amplitude * math.sin(TWO_PI * x_m / period)
+        self.x_m, self.v_m, self.x_l, self.v_l = _substeps(
+            n, h, x_m, self.v_m, self.x_l, self.v_l, pitch, self._force_per_volt * volts,
+            self._m_visc_braked if braking else self._m_visc, *self._constants)
         self.time += dt
