@@ -3,7 +3,8 @@
 Sections (each prints a small table; paste the output into the README with the machine):
 
 * core   — cost per servo tick of the ROS-free core: Profile.step + Settling.update, and a
-           whole Axis.update at rest and moving (in-process, no DDS).
+           whole Axis.update at rest and moving (in-process, no DDS); the in-process harness
+           (one axis + plant: a 1-inch move and back) in × real time, and the plant's step alone.
 * floor  — period jitter of a bare Python sleep loop and of a bare rclpy timer doing nothing
            (the machine's floor: the VM's scheduler sets it, not this code).
 * dds    — plant and controller as two processes over real DDS at 1 kHz and 2 kHz for 1, 6 and
@@ -18,6 +19,7 @@ Speed is measured here, never asserted in a test.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import statistics
@@ -105,6 +107,39 @@ def bench_core(n: int = 20000) -> list[tuple[str, float]]:
     rows.append(('  the same from scipy (Trajectory.sample: BPoly p, v, a)',
                  per_tick(lambda i: traj.sample((i % 3000 + 0.5) * 1e-3), n // 4)))
     return rows
+
+
+def bench_harness(repeats: int = 7) -> list[tuple[str, float, float, float]]:
+    """The in-process harness (one axis + plant) making the 1-inch move and back (2.08 s of sim
+    time), and the plant's step alone replaying that run's commands: (what, µs per 1 ms tick
+    best and median of `repeats`, × real time at the median, nan for the plant alone)."""
+    from motion_ctrl.core.registers import INCH
+    from motion_ctrl.sim.harness import Harness
+    from motion_ctrl.sim.plant import SlidePlant
+    h = Harness()
+    h.move(INCH)
+    h.move(0.0)
+    assert h.trace is not None
+    volts, ticks = list(h.trace.output), h.ticks
+    runs: list[float] = []
+    plant_runs: list[float] = []
+    for _ in range(repeats):
+        h = Harness(record=False)
+        t = time.perf_counter()
+        h.move(INCH)
+        h.move(0.0)
+        runs.append((time.perf_counter() - t) / h.ticks * 1e6)
+        assert h.ticks == ticks
+        p = SlidePlant()
+        t = time.perf_counter()
+        for v in volts:
+            p.step(v, 1e-3)
+        plant_runs.append((time.perf_counter() - t) / len(volts) * 1e6)
+    med = statistics.median(runs)
+    return [('in-process harness, one axis + plant: 1-inch move and back', min(runs), med,
+             1e3 / med),
+            ('SlidePlant.step alone, replaying that run', min(plant_runs),
+             statistics.median(plant_runs), math.nan)]
 
 
 # -- floor ---------------------------------------------------------------------------------------
@@ -249,6 +284,11 @@ def main(argv=None) -> int:
         print('| what | µs per tick |\n|---|---:|')
         for name, us in bench_core():
             print(f'| {name} | {us:.1f} |')
+        print('\n| in-process harness (2.08 s of sim time; 7 runs) | µs per tick best | median '
+              '| × real time (median) |\n|---|---:|---:|---:|')
+        for name, best, med, speed in bench_harness():
+            x = '' if math.isnan(speed) else f'{speed:.0f}'
+            print(f'| {name} | {best:.1f} | {med:.1f} | {x} |')
     ros = [s for s in sections if s in ('floor', 'dds', 'lockstep')]
     if ros:
         from motion_ctrl.ros import ros_env
