@@ -167,29 +167,6 @@ def test_given_spacing_and_travel_below_zero():
 
 
 # -- files -----------------------------------------------------------------------------------------
-def test_yaml_loads_with_rclpys_parameter_file_reader(tmp_path):
-    parameter_dict_from_yaml_file = pytest.importorskip('rclpy.parameter').\
-        parameter_dict_from_yaml_file
-    from rclpy.parameter import Parameter
-    targets = iso230.plan_targets(0.0, 0.05, 6)
-    tab = iso230.build_tables(result_for(targets), tolerance=0.25 * 2.54e-6)
-    tab.leadscrew_table[1] = 1e-06                    # repr '1e-06': YAML 1.1 text, not a float
-    path = tmp_path / 'comp.yaml'
-    path.write_text(iso230.params_yaml(tab, 'x', comment='two\nlines'))
-    params = parameter_dict_from_yaml_file(str(path), target_nodes=['controller'])
-    names = list(params)
-    assert names == ['x.backlash_distance', 'x.leadscrew_table_spacing', 'x.leadscrew_table',
-                     'x.backlash_table_spacing', 'x.backlash_table']     # spacings first
-    for name, value in tab.registers('x').items():
-        p = Parameter.from_parameter_msg(params[name])
-        if isinstance(value, list):
-            assert p.type_ == Parameter.Type.DOUBLE_ARRAY
-            assert list(p.value) == pytest.approx(value, rel=1e-15)
-        else:
-            assert p.type_ == Parameter.Type.DOUBLE
-            assert p.value == pytest.approx(value, rel=1e-15)
-
-
 def test_linuxcnc_comp_file_type_1_holds_the_trims():
     r = hand_example()
     text = iso230.linuxcnc_comp_file(r, 'mm')
@@ -199,6 +176,7 @@ def test_linuxcnc_comp_file_type_1_holds_the_trims():
     assert all(len(line.split()) == 3 for line in text.splitlines())     # no header line
 
 
+@pytest.mark.core_slow
 def test_report_table_and_plot(tmp_path):
     r = hand_example()
     text = iso230.format_report({'before': r}, 1 / 2.54e-6)
@@ -246,6 +224,7 @@ def iso_run(tables=None, plant=None, targets=None, latency_ticks=0, approach=(0.
                     approach=approach)
 
 
+@pytest.mark.core_slow
 @pytest.mark.timeout(300)
 def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
     """Two ticks of servo latency (DDS: 0-2 ms) leave the motor loop underdamped: a target
@@ -267,6 +246,7 @@ def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
         {'before': slow, 'after': after}, 1 / count)
 
 
+@pytest.mark.core_slow
 @pytest.mark.timeout(300)
 def test_calibration_on_the_simulated_slide_takes_out_backlash_and_pitch_error():
     """The default slide (20 counts backlash, pitch error) in the harness: the tables from one

@@ -9,6 +9,7 @@ from rclpy.parameter import (get_parameter_value, parameter_dict_from_yaml_file,
                              parameter_value_to_python)
 from rclpy.parameter_client import AsyncParameterClient
 
+from motion_ctrl.analysis import iso230
 from motion_ctrl.ros.client import SlideClient
 from motion_ctrl.ros.processes import NodeProcess, params_dir
 
@@ -94,6 +95,30 @@ def _load(client, params, path, atomically=False) -> dict:
     results = client.answer(lambda: params.load_parameter_file(str(path))).results
     assert len(results) == len(names)
     return dict(zip(names, results))
+
+
+def test_calibration_yaml_loads_with_rclpys_parameter_file_reader(tmp_path):
+    """The calibration's tables file (iso230.params_yaml) as `ros2 param load` reads it: each
+    register with its type, spacings before tables."""
+    from rclpy.parameter import Parameter
+    from test_iso230 import result_for       # a measured error curve with noise
+    targets = iso230.plan_targets(0.0, 0.05, 6)
+    tab = iso230.build_tables(result_for(targets), tolerance=0.25 * 2.54e-6)
+    tab.leadscrew_table[1] = 1e-06                    # repr '1e-06': YAML 1.1 text, not a float
+    path = tmp_path / 'comp.yaml'
+    path.write_text(iso230.params_yaml(tab, 'x', comment='two\nlines'))
+    params = parameter_dict_from_yaml_file(str(path), target_nodes=['controller'])
+    names = list(params)
+    assert names == ['x.backlash_distance', 'x.leadscrew_table_spacing', 'x.leadscrew_table',
+                     'x.backlash_table_spacing', 'x.backlash_table']     # spacings first
+    for name, value in tab.registers('x').items():
+        p = Parameter.from_parameter_msg(params[name])
+        if isinstance(value, list):
+            assert p.type_ == Parameter.Type.DOUBLE_ARRAY
+            assert list(p.value) == pytest.approx(value, rel=1e-15)
+        else:
+            assert p.type_ == Parameter.Type.DOUBLE
+            assert p.value == pytest.approx(value, rel=1e-15)
 
 
 def _refusals(results: dict) -> dict:
