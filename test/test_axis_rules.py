@@ -135,6 +135,7 @@ def test_a_feedback_change_is_refused_while_moving():
     assert h.axis.live_change_refusal({'feedback': 'motor'}) is None
 
 
+@pytest.mark.core_slow
 def test_memory_flat_over_10000_status_word_changes():
     """The node's axes keep no history of status words (Axis.events is for the harness): 10,000
     changes allocate < 50 kB that stay (it was ~75 bytes a change)."""

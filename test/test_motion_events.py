@@ -186,6 +186,7 @@ def test_a_move_shorter_than_a_tick_shows_no_moving_but_clears_motion_done():
     assert not any(w & S.MOVING for w in rec.word)
 
 
+@pytest.mark.core_slow
 def test_disturbance_during_settling_restarts_the_timer():
     """The same move twice: undisturbed, then shoved back 4 µm (motor and slide together, over
     5 ticks) half-way through the settling time. MOTION_DONE then comes a full settling time
@@ -343,6 +344,7 @@ def test_abort_opens_the_loop_at_once_and_reset_enable_close_it():
     assert not h.axis.status & S.ABORTED
 
 
+@pytest.mark.core_slow
 def test_correct_on_demand_with_motor_feedback_lands_the_slide():
     """<axis>/correct with feedback motor (Galil #CORRECT run by hand): after the reversal the
     slide misses by the backlash (~20 counts); one correction sequence, CORRECTING and MOVING

@@ -129,6 +129,7 @@ def hold(disturbance, **extra):
                 hz=peak_hz(slide), integral=h.axis.servo.integral)
 
 
+@pytest.mark.core_slow
 @pytest.mark.parametrize('disturbance', ['knock', -8], ids=['knock_10mm_s', 'step_-8_counts'])
 def test_plain_integrator_hunts_and_deadband_tolerance_stops_it(disturbance):
     plain = hold(disturbance)
