@@ -6,13 +6,13 @@ import tracemalloc
 
 import pytest
 
+from kit import INCH
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from msg_defs.status import Status as S
 
 DEFAULTS = axis_defaults(AXIS_REGISTERS)
-INCH = 0.0254
 ESTOP_DEC, STOP_DEC = 1.0, 0.25       # m/s²: the case
 
 

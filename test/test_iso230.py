@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from kit import COUNT
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.backlash import BacklashCompensation, interpolate_table
 
@@ -112,7 +113,7 @@ def result_for(targets):
 def test_tables_are_minus_the_error_in_pmac_conventions():
     targets = iso230.plan_targets(0.0, 0.1016, 21)
     r = result_for(targets)
-    tol = 0.25 * 2.54e-6
+    tol = 0.25 * COUNT
     tab = iso230.build_tables(r, tolerance=tol)
     up, down = curve(targets)
     diff = down - up
@@ -138,9 +139,9 @@ def test_the_controllers_compensation_commands_minus_the_measured_error():
     it adds to the motor command is −x̄↑ arriving positive and −x̄↓ arriving negative."""
     targets = iso230.plan_targets(0.005, 0.1016, 11)
     r = result_for(targets)
-    tab = iso230.build_tables(r, tolerance=0.1 * 2.54e-6)
+    tab = iso230.build_tables(r, tolerance=0.1 * COUNT)
     comp = BacklashCompensation()
-    comp.configure(distance=tab.backlash_distance, takeup_rate=0.0, hysteresis=2.54e-6,
+    comp.configure(distance=tab.backlash_distance, takeup_rate=0.0, hysteresis=COUNT,
                    backlash_table=tab.backlash_table, backlash_table_spacing=tab.spacing,
                    leadscrew_table=tab.leadscrew_table, leadscrew_table_spacing=tab.spacing)
     comp.reset(0.0)
@@ -155,7 +156,7 @@ def test_the_controllers_compensation_commands_minus_the_measured_error():
         c = go(step.position)
         if step.target is not None:
             want = (r.mean_up if step.direction > 0 else r.mean_down)[step.target]
-            assert c == pytest.approx(-want, abs=0.1 * 2.54e-6), step
+            assert c == pytest.approx(-want, abs=0.1 * COUNT), step
 
 
 def test_given_spacing_and_travel_below_zero():
@@ -179,10 +180,10 @@ def test_linuxcnc_comp_file_type_1_holds_the_trims():
 @pytest.mark.core_slow
 def test_report_table_and_plot(tmp_path):
     r = hand_example()
-    text = iso230.format_report({'before': r}, 1 / 2.54e-6)
+    text = iso230.format_report({'before': r}, 1 / COUNT)
     assert '| before | 4.72 | 2.36 | 3.15 | 1.57 | 3.94 | 12.00 | 6.00 | 8.00 | 4.00 | 10.00 |' \
         in text
-    iso230.plot_report({'before': r, 'after': r}, tmp_path / 'r.png', 1 / 2.54e-6)
+    iso230.plot_report({'before': r, 'after': r}, tmp_path / 'r.png', 1 / COUNT)
     assert (tmp_path / 'r.png').stat().st_size > 10_000
 
 
@@ -232,7 +233,7 @@ def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
     backlash, so the readings scatter (unidirectional repeatability 4s of many counts).
     calibrate's final approach (0.5 mm as a 0.5 s PVT segment) takes the scatter out, and
     the tables from such a run then work."""
-    count = 2.54e-6
+    count = COUNT
     targets = iso230.plan_targets(0.0127, 0.0508, 5)
     plain = iso_run(targets=targets, latency_ticks=2)
     slow = iso_run(targets=targets, latency_ticks=2, approach=(0.0005, 0.5))
@@ -252,7 +253,7 @@ def test_calibration_on_the_simulated_slide_takes_out_backlash_and_pitch_error()
     """The default slide (20 counts backlash, pitch error) in the harness: the tables from one
     ISO run leave a fresh ISO run with |B| and E of a count or two. Without them (the feature
     gone) B stays at the backlash."""
-    count = 2.54e-6
+    count = COUNT
     targets = iso230.plan_targets(0.0127, 0.0508, 5)
     before = iso_run(targets=targets)
     assert before.B / count == pytest.approx(20, abs=2)

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from kit import COUNT
 from msg_defs.status import Status
 from motion_ctrl.core.axis import stopping_distance
 from motion_ctrl.sim.harness import Harness
@@ -108,7 +109,7 @@ def derivatives(x):
 
 # 1. ---------------------------------------------------------------- position move events
 @pytest.mark.parametrize('coarse, coarse_before_at_target', [
-    (2 * 2.54e-6, False),      # two linear counts: the slide gets there after the command
+    (2 * COUNT, False),      # two linear counts: the slide gets there after the command
     (1e-3, True),              # 1 mm: near the target while the command still decelerates
 ])
 def test_position_move_event_order_and_settling_time(coarse, coarse_before_at_target):

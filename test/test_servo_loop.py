@@ -2,6 +2,7 @@
 watchdog, the loop-closing gate, scheduled targets and register sets applied together."""
 import pytest
 
+from kit import COUNT
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from motion_ctrl.core.servo_loop import STREAM_SETTLE, ServoLoop
@@ -108,7 +109,7 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     loop says so once."""
     from motion_ctrl.core.dual_loop import SampledCorrection
     c = SampledCorrection()
-    c.configure(2 * 2.54e-6, 200, 1 / 2.54e-6, 0.02)
+    c.configure(2 * COUNT, 200, 1 / COUNT, 0.02)
     c.start_now()
 
     def settled(error_counts):
@@ -116,12 +117,12 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
         for _ in range(200):
             v2 = c.update(1e-3, profile_done=True, motor_settled=True, motor_counts=0,
                           load_counts=0, load_error_counts=error_counts, motor_error=0.0,
-                          load_error=error_counts * 2.54e-6)
+                          load_error=error_counts * COUNT)
             if v2 is not None or c.phase == c.DONE:
                 return v2
         return None
-    assert settled(20) == pytest.approx(20 * 2.54e-6)          # first correction: V2 = V1
-    assert settled(-30) == pytest.approx(-30 * 2.54e-6)        # overshot: still corrected
+    assert settled(20) == pytest.approx(20 * COUNT)          # first correction: V2 = V1
+    assert settled(-30) == pytest.approx(-30 * COUNT)        # overshot: still corrected
     assert settled(81) is None and c.phase == c.DONE            # > 4 × the first: no more
     assert c.diverged == (20, 81) and c.moves == 2
 
