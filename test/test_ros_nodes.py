@@ -347,7 +347,8 @@ def _axis_diag(p: Probe, key: str, since: float):
 def test_set_kp_is_applied(axis):
     """`ros2 param set /controller x.kp ...`: accepted, read back, in the loop (the gains
     /diagnostics reports are those the axis runs with), and the loop still moves and settles
-    with it."""
+    with it. (Fails if the node does not stage the new kp, checked by breaking it; that the
+    law then pushes with it is test_servo_loop's test_a_kp_set_is_what_the_loop_pushes_with.)"""
     p = axis
     old = p.get_params('x.kp')['x.kp']
     new = old * 1.2

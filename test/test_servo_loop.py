@@ -41,6 +41,30 @@ def test_the_loop_closes_after_the_stream_has_run_its_settling_time():
     assert sim.tick(0.0).names == ['x'] and sim.axes['x'].enabled
 
 
+def test_a_kp_set_is_what_the_loop_pushes_with_from_the_next_tick():
+    """`ros2 param set /controller x.kp`: the node stages it (as here) and from the next tick
+    the axis pushes harder by exactly the new gain times its following error (the other terms
+    are the same: at rest, the slide held 10 counts off). test_ros_nodes' test_set_kp_is_applied
+    checks the node stages it; this, that the law runs with it."""
+    def outputs(kp_factor):
+        loop = _loop()
+        _run(loop, 0.0, 1.0)
+        kp = loop.current('x')['kp']
+        if kp_factor != 1.0:
+            loop.stage('x', {'kp': kp * kp_factor})
+        out = []
+        for k in range(5):
+            loop.feedback('x', 0, 10, 1.0 + k * T)
+            out.append((loop.tick(1.0 + k * T).outputs[0], loop.axes['x'].following_error))
+        return kp, out
+    kp, before = outputs(1.0)
+    _, after = outputs(1.2)
+    assert before[0][1] == pytest.approx(-10 * COUNT)
+    for (old, error), (new, same_error) in zip(before, after):
+        assert same_error == error
+        assert new - old == pytest.approx(0.2 * kp * error, rel=1e-9), (old, new)
+
+
 def test_feedback_fault_after_the_timeout_logged_once():
     loop = _loop()
     _run(loop, 0.0, 1.0)
