@@ -634,7 +634,8 @@ def test_stop_that_would_pass_a_soft_limit_brakes_to_it():
     left = limit - h.axis.command_position
     assert stopping_distance(0.08, 0.0, 0.5, 0.0) > left > stopping_distance(0.08, 0.0, A_MAX, 0)
     assert h.axis.stop() == (True, '')
-    assert h.axis.sticky == S.LIMIT
+    h.tick()
+    assert h.axis.status & S.LIMIT                 # from the STOP's tick on
     h.run(0.5, until=done)
     assert max(h.trace.command) == limit == h.trace.command[-1]
     w = h.axis.status
