@@ -43,10 +43,11 @@ def _start(h) -> dict:
 
 def _run_recording(h, seconds):
     t, xy = [], []
-    for _ in range(round(seconds / h.T)):
-        h.tick()
+
+    def record(h):
         t.append(h.time)
         xy.append((h.plants['x'].x_l, h.plants['y'].x_l))
+    h.run(seconds, disturbance=record)
     return np.array(t), np.array(xy)
 
 

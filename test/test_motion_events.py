@@ -57,15 +57,12 @@ class Recorder:
         self.settle_start.append(a.settling.settle_start)
 
     def run(self, seconds, until=None, disturbance=None):
-        for _ in range(round(seconds / T)):
-            def cb(h):
-                if disturbance is not None:
-                    disturbance(h)
-                self(h)
-            self.h.tick(cb)
-            if until is not None and until(self.h):
-                return True
-        return False
+        """Harness.run, recording after each tick (and the disturbance first)."""
+        def each(h):
+            if disturbance is not None:
+                disturbance(h)
+            self(h)
+        return self.h.run(seconds, until, each)
 
 
 def done(h):
