@@ -20,16 +20,124 @@ if sys.path[0] != REPO_ROOT:
     sys.path.insert(0, REPO_ROOT)
 
 
-# --- ROS 2 over-DDS fixtures (test_ros_*.py) -----------------------------------------------------
+import subprocess  # noqa: E402
+
 import pytest  # noqa: E402
+from _pytest.mark.expression import Expression  # noqa: E402
+
+
+# --- The core marker: tests that need no ROS -----------------------------------------------------
+# The test files of the ROS-free layers (motion_ctrl/core, sim, analysis; README "How it is
+# built"): in-process, no rclpy or message package, no process started. Every test in them is
+# marked `core` (`scripts/test -m core`), except those marked `core_slow` (ROS-free as well, but
+# a whole simulated test plan each, seconds apiece: they run with the full suite, or with
+# `-m "core or core_slow"`). The list is the one place that says which file is which; while a
+# test of these files runs, ROS packages refuse to import and starting a process fails (below),
+# and test_core_without_ros imports each of them in an interpreter without ROS.
+CORE_FILES = frozenset({
+    'test_axis_rules.py', 'test_backlash.py', 'test_coordinated.py', 'test_core_without_ros.py',
+    'test_deadband.py', 'test_excitation.py', 'test_feedback_sync.py', 'test_gather.py',
+    'test_identify.py', 'test_iso230.py', 'test_motion_events.py', 'test_notch.py',
+    'test_plant.py', 'test_profile.py', 'test_registers.py', 'test_scenarios.py',
+    'test_servo_law.py', 'test_servo_loop.py', 'test_servo_scenarios.py', 'test_settling.py',
+    'test_trajectory.py',
+})
+CORE_MARKS = ('core', 'core_slow')
+# What a ROS-free test may not import: ROS 2's Python packages and messages, and what reads bags.
+ROS_PACKAGES = ('rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs',
+                'diagnostic_msgs', 'trajectory_msgs', 'rosgraph_msgs', 'builtin_interfaces',
+                'ament_index_python', 'rosbags', 'mcap')
+
+
+class NoRos:
+    """A meta path finder that refuses ROS packages (those not imported yet)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ROS_PACKAGES:
+            raise ImportError(f'{name}: a core test may not import ROS (conftest.CORE_FILES)')
+        return None
+
+
+NO_ROS = NoRos()
+
+
+def is_core_file(path) -> bool:
+    return os.path.basename(str(path)) in CORE_FILES
+
+
+def core_only(config) -> bool:
+    """The -m expression selects no test outside CORE_FILES (`-m core`, `-m "core or
+    core_slow"`): decided for a test with no other mark and for one with every other mark."""
+    expr = config.option.markexpr
+    if not expr:
+        return False
+    compiled = Expression.compile(expr)
+    return not any(compiled.evaluate(lambda name, /, **kw: other and name not in CORE_MARKS)
+                   for other in (False, True))
+
+
+def pytest_configure(config):
+    if core_only(config):
+        # Nothing of this run may import ROS: the other test files are not even collected.
+        sys.meta_path.insert(0, NO_ROS)
+
+
+def pytest_ignore_collect(collection_path, config):
+    if (collection_path.name.startswith('test_') and collection_path.suffix == '.py'
+            and not is_core_file(collection_path) and core_only(config)):
+        return True
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)        # before -m deselects by the marks
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        core = is_core_file(item.path)
+        marks = {m.name for m in item.iter_markers() if m.name in CORE_MARKS}
+        if marks and not core:
+            raise pytest.UsageError(f'{item.nodeid}: marked {" and ".join(sorted(marks))} but '
+                                    'its file is not in conftest.CORE_FILES')
+        if core and not marks:
+            item.add_marker(pytest.mark.core)
+
+
+def _no_process(*args, **kwargs):
+    raise AssertionError('a core test starts no process (mark it fresh_interpreter if it runs '
+                         'plain Python without ROS, or move it out of conftest.CORE_FILES)')
+
+
+@pytest.fixture(autouse=True)
+def core_is_ros_free(request, monkeypatch):
+    """A test of CORE_FILES runs with ROS packages refusing to import (those not imported yet:
+    in a `-m core` run, all) and may start no process (fresh_interpreter: plain Python)."""
+    if not is_core_file(request.path):
+        yield
+        return
+    if request.node.get_closest_marker('fresh_interpreter') is None:
+        monkeypatch.setattr(subprocess.Popen, '_execute_child', _no_process)
+    added = NO_ROS not in sys.meta_path
+    if added:
+        sys.meta_path.insert(0, NO_ROS)
+    try:
+        yield
+    finally:
+        if added:
+            sys.meta_path.remove(NO_ROS)
+
+
+# --- ROS 2 over-DDS fixtures (test_ros_*.py) -----------------------------------------------------
 
 
 @pytest.fixture(scope='session', autouse=True)
-def no_zombie_shm():
+def no_zombie_shm(request):
     """Before and after the run: the shared-memory files of DDS processes that died (some
     tests kill nodes on purpose) go, so their locked port mutexes cannot stall later nodes.
     Not between tests: the check takes each lock file's flock for a moment, and a participant
-    starting meanwhile finds its lock taken (its shared-memory port then fails)."""
+    starting meanwhile finds its lock taken (its shared-memory port then fails). Not in a
+    `-m core` run: it starts no participant."""
+    if core_only(request.config):
+        yield
+        return
     from motion_ctrl.ros import ros_env
     ros_env.clean_zombie_shm()
     yield
@@ -37,11 +145,15 @@ def no_zombie_shm():
 
 
 @pytest.fixture(scope='module', autouse=True)
-def module_domain():
+def module_domain(request):
     """Every test module on a ROS domain of its own (ros_env.spare_domain), set in the
     environment its node processes inherit: what one module's processes leave in shared memory
     (a killed or crashed participant's port, whose dead listener a later participant with the
-    same port number inherits) cannot reach the next module's nodes. Yields the domain."""
+    same port number inherits) cannot reach the next module's nodes. Yields the domain (None
+    for a core module: it has no nodes)."""
+    if is_core_file(request.path):
+        yield None
+        return
     from motion_ctrl.ros import ros_env
     saved = os.environ['ROS_DOMAIN_ID']
     domain = ros_env.spare_domain()

@@ -25,9 +25,10 @@ from std_msgs.msg import Bool  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
+from kit import COUNT, INCH, running_slide, spin_for  # noqa: E402
 from motion_ctrl.ros.client import FAULTS, SlideClient  # noqa: E402
-from motion_ctrl.ros.processes import NodeProcess, params_dir, start_slide  # noqa: E402
-from motion_ctrl.core.registers import INCH, PLANT_AXIS  # noqa: E402
+from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
+from motion_ctrl.core.registers import PLANT_AXIS  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
@@ -35,7 +36,6 @@ try:                            # the project venv has pytest-timeout: a hung wa
 except ImportError:
     pass
 
-COUNT = INCH / 10000
 COMMAND_TIMEOUT = cast(float, PLANT_AXIS['command_timeout'].default)   # a 'double' register
 PLANT_PERIOD = 1e-3            # s: the plant's cycle (publish_rate 1 kHz)
 MAX_VELOCITY = 0.1             # the controller's default max_velocity [m/s]
@@ -77,27 +77,19 @@ class Recorder(SlideClient):
 
 @pytest.fixture
 def slide(own_domain, tmp_path):
-    # The recorder first: a reader joining later holds the plant's streams up (conftest
-    # slow_watchdog), which would trip the default 20 ms encoder watchdog.
-    client = Recorder(own_domain)
-    plant, controller = start_slide(log_dir=tmp_path)
-    nodes = {'plant': plant, 'controller': controller}
-    try:
-        assert client.wait_ready(30.0), \
-            f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
+    """The slide with the default parameters (20 ms encoder watchdog), the Recorder first: a
+    reader joining later holds the plant's streams up (conftest slow_watchdog), which would
+    trip it."""
+    with running_slide(tmp_path, lambda: Recorder(own_domain), client_first=True) as s:
         # Discovery holds streams up for a while after start-up, long enough to trip the
         # default encoder watchdog (conftest.slow_watchdog); this test is about what follows.
-        _enable(client)
-        yield client, nodes, tmp_path
-    finally:
-        client.destroy_node()
-        for name in ('controller', 'plant'):
-            nodes[name].stop()
+        _enable(s.client)
+        yield s
 
 
 def _enable(client) -> None:
     """Once the streams have settled: reset + enable, the axis closed and unfaulted."""
-    client.spin_until(lambda: False, 1.0)
+    spin_for(client, 1.0)
     assert client.call('reset').success
     assert client.call('enable', True).success
     assert client.spin_until(lambda: client.status['x'] & Status.ENABLED
@@ -115,7 +107,7 @@ def _cruise(client):
     word = Status(client.status['x'])
     assert cruising and not word & FAULTS, \
         f'slide not cruising: v = {client.truth_log[-1][2]:.4f} m/s, status {word!r}'
-    client.spin_until(lambda: False, 0.2)       # cruise a little
+    spin_for(client, 0.2)                       # cruise a little
     # ... and kill at a moment the slide is seen at full speed (a stream held up on this VM
     # can trip the 10 ms amplifier watchdog for a moment, which brakes it).
     assert client.spin_until(lambda: client.truth_log[-1][2] >= 0.99 * MAX_VELOCITY, 1.0), \
@@ -129,7 +121,7 @@ def _cruise(client):
 def _after_stop(client, t_stop: float) -> dict:
     """Spin 1 s, then measure from t_stop on: time to 0 V (from the stop and from the last
     command the plant could have had), travel, time to rest."""
-    client.spin_until(lambda: False, 1.0)
+    spin_for(client, 1.0)
     truth = client.truth_log
     before = [s for s in truth if s[0] <= t_stop]
     after = [s for s in truth if s[0] > t_stop]
@@ -155,18 +147,19 @@ def _after_stop(client, t_stop: float) -> dict:
     }
 
 
-def _restart_and_move(client, nodes, log_dir) -> float:
+def _restart_and_move(slide) -> float:
     """A new controller: reset + enable, a 1-inch move; the true slide error in counts."""
+    client = slide.client
     client.status['x'] = None
-    nodes['controller'] = NodeProcess('controller_node', params_dir() / 'controller.yaml',
-                                      log_path=log_dir / 'controller2.log')
+    slide.controller = NodeProcess('controller_node', params_dir() / 'controller.yaml',
+                                   log_path=slide.log_dir / 'controller2.log')
     assert client.wait_ready(30.0), f'controller did not come back: {client.not_ready()}'
     _enable(client)
     assert client.spin_until(lambda: client.fault is False, 2.0), 'amplifier still faulted'
     target = round((client.load_position() + INCH) / COUNT) * COUNT
     t = client.move({'x': target}, timeout=10.0)
     assert t is not None, f'no MOTION_DONE, status {Status(client.status["x"])!r}'
-    client.spin_until(lambda: False, 0.05)
+    spin_for(client, 0.05)                      # the latest truth after MOTION_DONE
     return (client.load_position() - target) / COUNT
 
 
@@ -188,15 +181,15 @@ def _check(m: dict) -> None:
 def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
     """SIGKILL: nothing of the controller runs any more; the plant's command watchdog puts the
     output to 0 V after command_timeout, says so on x/amplifier_fault, and brakes."""
-    client, nodes, log_dir = slide
+    client = slide.client
     _cruise(client)
     t_stop = time.time()                          # ROS time in real time: the stamps' clock
-    nodes['controller'].proc.send_signal(signal.SIGKILL)
+    slide.controller.proc.send_signal(signal.SIGKILL)
     m = _after_stop(client, t_stop)
     assert client.fault is True
     _check(m)
-    assert 'x: amplifier fault' in (log_dir / 'plant.log').read_text()
-    error = _restart_and_move(client, nodes, log_dir)
+    assert 'x: amplifier fault' in slide.log('plant')
+    error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
     assert abs(error) <= 1.0
 
@@ -204,17 +197,17 @@ def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
 def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
     """SIGINT (Ctrl-C, launch's stop): the controller itself opens the loop and commands 0 V
     before it exits (code 0); the plant's watchdog then brakes the slide."""
-    client, nodes, log_dir = slide
+    client = slide.client
     _cruise(client)
     t_stop = time.time()
-    nodes['controller'].proc.send_signal(signal.SIGINT)
+    slide.controller.proc.send_signal(signal.SIGINT)
     m = _after_stop(client, t_stop)
-    assert nodes['controller'].proc.wait(5.0) == 0
+    assert slide.controller.proc.wait(5.0) == 0
     commands = client.decoded(md.COMMAND)
     assert commands[-1][1] == 0.0, commands[-5:]            # its last word: 0 V
     assert not client.status['x'] & Status.ENABLED          # and the loop open
-    assert 'loops opened, 0 V commanded' in (log_dir / 'controller.log').read_text()
+    assert 'loops opened, 0 V commanded' in slide.log('controller')
     _check(m)
-    error = _restart_and_move(client, nodes, log_dir)
+    error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
     assert abs(error) <= 1.0

@@ -6,13 +6,13 @@ import tracemalloc
 
 import pytest
 
+from kit import INCH
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from msg_defs.status import Status as S
 
 DEFAULTS = axis_defaults(AXIS_REGISTERS)
-INCH = 0.0254
 ESTOP_DEC, STOP_DEC = 1.0, 0.25       # m/s²: the issue's case
 
 
@@ -135,6 +135,7 @@ def test_a_feedback_change_is_refused_while_moving():
     assert h.axis.live_change_refusal({'feedback': 'motor'}) is None
 
 
+@pytest.mark.core_slow
 def test_memory_flat_over_10000_status_word_changes():
     """The node's axes keep no history of status words (Axis.events is for the harness): 10,000
     changes allocate < 50 kB that stay (it was ~75 bytes a change)."""

@@ -13,6 +13,14 @@ from motion_ctrl.core.registers import BacklashConfig
 
 UM = 1e-6
 MM = 1e-3
+
+
+def reversal_reference(bc):
+    """The running extreme in the current direction [m] that the hysteresis counts from (None
+    before the first reset or step): internal state, read for these tests only."""
+    return bc._extreme
+
+
 TOL = 1e-12  # 1 pm: far below anything meaningful, above float noise
 
 
@@ -94,19 +102,19 @@ def test_hysteresis_counted_from_extreme_point():
     bc = make(distance=50 * UM, takeup_rate=0.0, hysteresis=4 * UM)  # rate 0: step
     for pos in (0.25 * MM, 0.5 * MM, 0.75 * MM, 1 * MM):
         bc.step(pos, 1e-3)
-    assert bc.reversal_reference == 1 * MM
+    assert reversal_reference(bc) == 1 * MM
     # creep back in steps each < 4 um; total 3.9 um from the 1 mm extreme -> nothing
     for pos in (0.999 * MM, 0.998 * MM, 0.997 * MM, 0.9961 * MM):
         assert bc.step(pos, 1e-3) == approx(0.0)
         assert bc.direction == +1 and bc.register == 0.0
-    assert bc.reversal_reference == 1 * MM
+    assert reversal_reference(bc) == 1 * MM
     # 0.9959 mm is 4.1 um below the extreme: reversal; rate 0 -> whole distance at once
     assert bc.step(0.9959 * MM, 1e-3) == approx(-50 * UM)
     assert bc.direction == -1 and bc.register == 50 * UM
-    assert bc.reversal_reference == 0.9959 * MM
+    assert reversal_reference(bc) == 0.9959 * MM
     # the negative-going extreme is the running minimum
     bc.step(0.9 * MM, 1e-3)
-    assert bc.reversal_reference == 0.9 * MM
+    assert reversal_reference(bc) == 0.9 * MM
     bc.step(0.9 * MM + 4 * UM, 1e-3)            # exactly 4 um: not "more than"
     bc.step(0.9 * MM + 3.9 * UM, 1e-3)
     assert bc.direction == -1 and bc.register == 50 * UM
@@ -229,13 +237,13 @@ def test_reset_and_first_step_without_reset():
     assert bc.register == 50 * UM
     bc.reset(0.2 * MM)                          # e.g. after an abort
     assert bc.direction == +1 and bc.register == 0.0 and not bc.active
-    assert bc.reversal_reference == 0.2 * MM
+    assert reversal_reference(bc) == 0.2 * MM
     bc.step(0.1 * MM, 1e-3)                     # reversal counted from the reset point
     assert bc.direction == -1
 
     fresh = BacklashCompensation(config(distance=50 * UM, takeup_rate=0.0))
     assert fresh.step(1 * MM, 1e-3) == 0.0      # first step = reset there
-    assert fresh.direction == +1 and fresh.reversal_reference == 1 * MM
+    assert fresh.direction == +1 and reversal_reference(fresh) == 1 * MM
 
 
 # 6. bad configuration is refused (by the register table) and the previous one keeps working
@@ -275,5 +283,5 @@ def test_bad_step_arguments_raise_without_changing_state():
         with pytest.raises(ValueError):
             bc.step(pos, dt)
     assert bc.direction == +1 and bc.register == 0.0
-    assert bc.reversal_reference == 1 * MM and bc.nominal_position == 1 * MM
+    assert reversal_reference(bc) == 1 * MM and bc.nominal_position == 1 * MM
     assert math.isfinite(bc.correction)

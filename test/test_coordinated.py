@@ -43,13 +43,15 @@ def _start(h) -> dict:
 
 def _run_recording(h, seconds):
     t, xy = [], []
-    for _ in range(round(seconds / h.T)):
-        h.tick()
+
+    def record(h):
         t.append(h.time)
         xy.append((h.plants['x'].x_l, h.plants['y'].x_l))
+    h.run(seconds, disturbance=record)
     return np.array(t), np.array(xy)
 
 
+@pytest.mark.core_slow
 def test_circle_contour_error_and_motion_done(xy):
     """Both axes on one time base: the true slides stay within the example's figures of the
     commanded circle (issue 16: <= 5 counts RMS, <= 15 peak after the first quarter), and both
@@ -68,6 +70,7 @@ def test_circle_contour_error_and_motion_done(xy):
         assert abs(h.plants[a].x_l - end[j]) * LOAD_COUNTS_PER_M <= 1.0
 
 
+@pytest.mark.core_slow
 def test_without_friction_feedforward_the_quadrant_glitch_shows(xy):
     """Why the example sets friction_ff: without it each axis sticks where its velocity
     reverses, and the contour error peaks there above the issue's 15 counts."""
@@ -103,6 +106,7 @@ def _slow_line(start, dx=0.004, seconds=2.0) -> tj.Points:
     return tj.Points(np.array(times), np.array(pos), None, None)
 
 
+@pytest.mark.core_slow
 @pytest.mark.parametrize('case', list(BAD) + ['max_velocity', 'max_acceleration'])
 def test_refusals_name_the_reason_and_leave_the_running_motion_untouched(case):
     """Issue 16 must-show 2: every refusal says why (axis, point, limit) and the trajectory that
@@ -159,6 +163,7 @@ def test_a_new_trajectory_replaces_the_running_one_without_a_jump(xy):
     assert np.abs(dv[95:105]).max() <= h.axes['x'].r['max_acceleration'] * h.T * 1.01, dv[95:105]
 
 
+@pytest.mark.core_slow
 def test_stopping_one_axis_stops_the_whole_path(xy):
     """A coordinate system stops as one (PMAC): x stopped mid-path, y is stopped too (its own
     STOP deceleration), both at rest with STOPPED; the log says why."""

@@ -6,11 +6,12 @@ Numbers: a 0.4 V deadband, a 1 mm tolerance, and the default slide's linear enco
 
 import pytest
 
+from kit import COUNT
 from motion_ctrl.core.deadband import anti_hunting, limit_integral_to_wind_down, output_deadband
 
 DB = 0.4          # V
 TOL = 1e-3        # m
-HALF_COUNT = 0.5 * 2.54e-6   # m, half a linear count of the Galil slide
+HALF_COUNT = 0.5 * COUNT     # m, half a linear count of the Galil slide
 
 
 def pos(output, error, tolerance=TOL, stopped=True, deadband=DB):

@@ -56,6 +56,7 @@ def test_a_stop_abort_or_move_ends_the_run(how, why):
     assert np.all(np.isfinite(g.columns()['output']))
 
 
+@pytest.mark.core_slow
 def test_the_travel_budget_ends_the_run():
     h = _ready()
     e = ex.log_chirp(3.0, (0.5, 5.0), 4.0, FS)       # slow and large: the slide goes far
@@ -86,6 +87,7 @@ def test_refused_unless_enabled_at_rest_with_a_budget(case):
     assert not ok and h.axis.gather is None
 
 
+@pytest.mark.core_slow
 def test_closed_loop_records_identify_the_slide():
     """The slide (backlash and friction off) in closed loop on its motor encoder, a PRBS of 2 V
     added to the output for 8 s: G = S_ry / S_ru from the records, with the excitation as the

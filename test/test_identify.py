@@ -89,6 +89,7 @@ def test_model_is_the_physical_two_mass_transfer_function():
     assert within(model.accel_per_volt, truth['accel_per_volt'], 0.002)
 
 
+@pytest.mark.core_slow
 def test_fit_recovers_a_discrete_two_mass_plant_with_noise():
     """Open loop, a periodic PRBS averaged over whole periods, 0.3 µm measurement noise on
     both encoders: resonance, anti-resonance, gain, inertias and friction come back."""
@@ -132,6 +133,7 @@ def test_fit_recovers_a_discrete_two_mass_plant_with_noise():
     np.testing.assert_allclose(np.abs(fit.response(f) / exact), 1.0, atol=0.05)
 
 
+@pytest.mark.core_slow
 def test_slide_plant_resonance_matches_its_stiffness_and_masses():
     """SlidePlant driven open loop by a PRBS (friction and backlash off), read through its
     quantised encoders: the identified resonance is the one its stiffness and masses give."""
@@ -179,6 +181,7 @@ def test_fit_needs_coherent_points():
 # ----------------------------------------------------------------------------------------------
 # closed loop: the instrument estimate
 
+@pytest.mark.core_slow
 def test_closed_loop_instrument_estimate_is_unbiased_where_the_naive_one_is_not():
     """A PD loop closed on the motor encoder, 10 µm of noise on the measured position, the
     excitation r added to the controller output: u correlates with the noise through the
@@ -339,6 +342,7 @@ def _servo_law_response(regs, ad, bd, gain, latency_ticks, seconds=3.0):
     return np.array(out)
 
 
+@pytest.mark.core_slow
 def test_pid_open_loop_margin_predicts_where_the_servo_law_goes_unstable():
     """The open loop built from the registers (PID + notch + one tick of latency) on the
     plant's sampled response gives a gain margin; the controller's own ServoLaw, closed on
@@ -362,6 +366,7 @@ def test_pid_open_loop_margin_predicts_where_the_servo_law_goes_unstable():
     assert m0.gain_margin_db > m.gain_margin_db + 1.0
 
 
+@pytest.mark.core_slow
 def test_margins_of_the_shipped_gains_on_the_identified_slide():
     """The registers' default gains (dual loop: kp, ki on the slide, kd on the motor; one tick
     of latency, as motion_ctrl.tools.tuning assumes) on the two-mass fit of the default slide: the

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from kit import COUNT
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.backlash import BacklashCompensation, interpolate_table
 from motion_ctrl.core.registers import BacklashConfig
@@ -113,7 +114,7 @@ def result_for(targets):
 def test_tables_are_minus_the_error_in_pmac_conventions():
     targets = iso230.plan_targets(0.0, 0.1016, 21)
     r = result_for(targets)
-    tol = 0.25 * 2.54e-6
+    tol = 0.25 * COUNT
     tab = iso230.build_tables(r, tolerance=tol)
     up, down = curve(targets)
     diff = down - up
@@ -139,10 +140,10 @@ def test_the_controllers_compensation_commands_minus_the_measured_error():
     it adds to the motor command is −x̄↑ arriving positive and −x̄↓ arriving negative."""
     targets = iso230.plan_targets(0.005, 0.1016, 11)
     r = result_for(targets)
-    tab = iso230.build_tables(r, tolerance=0.1 * 2.54e-6)
+    tab = iso230.build_tables(r, tolerance=0.1 * COUNT)
     comp = BacklashCompensation(BacklashConfig.of(dict(
         backlash_distance=tab.backlash_distance, backlash_takeup_rate=0.0,
-        backlash_hysteresis=2.54e-6, backlash_table=list(tab.backlash_table),
+        backlash_hysteresis=COUNT, backlash_table=list(tab.backlash_table),
         backlash_table_spacing=tab.spacing, leadscrew_table=list(tab.leadscrew_table),
         leadscrew_table_spacing=tab.spacing)))
     comp.reset(0.0)
@@ -157,7 +158,7 @@ def test_the_controllers_compensation_commands_minus_the_measured_error():
         c = go(step.position)
         if step.target is not None:
             want = (r.mean_up if step.direction > 0 else r.mean_down)[step.target]
-            assert c == pytest.approx(-want, abs=0.1 * 2.54e-6), step
+            assert c == pytest.approx(-want, abs=0.1 * COUNT), step
 
 
 def test_given_spacing_and_travel_below_zero():
@@ -169,29 +170,6 @@ def test_given_spacing_and_travel_below_zero():
 
 
 # -- files -----------------------------------------------------------------------------------------
-def test_yaml_loads_with_rclpys_parameter_file_reader(tmp_path):
-    parameter_dict_from_yaml_file = pytest.importorskip('rclpy.parameter').\
-        parameter_dict_from_yaml_file
-    from rclpy.parameter import Parameter
-    targets = iso230.plan_targets(0.0, 0.05, 6)
-    tab = iso230.build_tables(result_for(targets), tolerance=0.25 * 2.54e-6)
-    tab.leadscrew_table[1] = 1e-06                    # repr '1e-06': YAML 1.1 text, not a float
-    path = tmp_path / 'comp.yaml'
-    path.write_text(iso230.params_yaml(tab, 'x', comment='two\nlines'))
-    params = parameter_dict_from_yaml_file(str(path), target_nodes=['controller'])
-    names = list(params)
-    assert names == ['x.backlash_distance', 'x.leadscrew_table_spacing', 'x.leadscrew_table',
-                     'x.backlash_table_spacing', 'x.backlash_table']     # spacings first
-    for name, value in tab.registers('x').items():
-        p = Parameter.from_parameter_msg(params[name])
-        if isinstance(value, list):
-            assert p.type_ == Parameter.Type.DOUBLE_ARRAY
-            assert list(p.value) == pytest.approx(value, rel=1e-15)
-        else:
-            assert p.type_ == Parameter.Type.DOUBLE
-            assert p.value == pytest.approx(value, rel=1e-15)
-
-
 def test_linuxcnc_comp_file_type_1_holds_the_trims():
     r = hand_example()
     text = iso230.linuxcnc_comp_file(r, 'mm')
@@ -201,12 +179,13 @@ def test_linuxcnc_comp_file_type_1_holds_the_trims():
     assert all(len(line.split()) == 3 for line in text.splitlines())     # no header line
 
 
+@pytest.mark.core_slow
 def test_report_table_and_plot(tmp_path):
     r = hand_example()
-    text = iso230.format_report({'before': r}, 1 / 2.54e-6)
+    text = iso230.format_report({'before': r}, 1 / COUNT)
     assert '| before | 4.72 | 2.36 | 3.15 | 1.57 | 3.94 | 12.00 | 6.00 | 8.00 | 4.00 | 10.00 |' \
         in text
-    iso230.plot_report({'before': r, 'after': r}, tmp_path / 'r.png', 1 / 2.54e-6)
+    iso230.plot_report({'before': r, 'after': r}, tmp_path / 'r.png', 1 / COUNT)
     assert (tmp_path / 'r.png').stat().st_size > 10_000
 
 
@@ -248,6 +227,7 @@ def iso_run(tables=None, plant=None, targets=None, latency_ticks=0, approach=(0.
                     approach=approach)
 
 
+@pytest.mark.core_slow
 @pytest.mark.timeout(300)
 def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
     """Two ticks of servo latency (DDS: 0-2 ms) leave the motor loop underdamped: a target
@@ -255,7 +235,7 @@ def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
     backlash, so the readings scatter (unidirectional repeatability 4s of many counts).
     calibrate's final approach (0.5 mm as a 0.5 s PVT segment) takes the scatter out, and
     the tables from such a run then work."""
-    count = 2.54e-6
+    count = COUNT
     targets = iso230.plan_targets(0.0127, 0.0508, 5)
     plain = iso_run(targets=targets, latency_ticks=2)
     slow = iso_run(targets=targets, latency_ticks=2, approach=(0.0005, 0.5))
@@ -269,12 +249,13 @@ def test_a_slow_final_approach_makes_the_motor_loop_repeatable_under_latency():
         {'before': slow, 'after': after}, 1 / count)
 
 
+@pytest.mark.core_slow
 @pytest.mark.timeout(300)
 def test_calibration_on_the_simulated_slide_takes_out_backlash_and_pitch_error():
     """The default slide (20 counts backlash, pitch error) in the harness: the tables from one
     ISO run leave a fresh ISO run with |B| and E of a count or two. Without them (the feature
     gone) B stays at the backlash."""
-    count = 2.54e-6
+    count = COUNT
     targets = iso230.plan_targets(0.0127, 0.0508, 5)
     before = iso_run(targets=targets)
     assert before.B / count == pytest.approx(20, abs=2)

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from kit import COUNT
 from msg_defs.status import Status
 from motion_ctrl.core.soft_limits import stopping_distance
 from motion_ctrl.sim.harness import Harness
@@ -56,15 +57,12 @@ class Recorder:
         self.settle_start.append(a.settling.settle_start)
 
     def run(self, seconds, until=None, disturbance=None):
-        for _ in range(round(seconds / T)):
-            def cb(h):
-                if disturbance is not None:
-                    disturbance(h)
-                self(h)
-            self.h.tick(cb)
-            if until is not None and until(self.h):
-                return True
-        return False
+        """Harness.run, recording after each tick (and the disturbance first)."""
+        def each(h):
+            if disturbance is not None:
+                disturbance(h)
+            self(h)
+        return self.h.run(seconds, until, each)
 
 
 def done(h):
@@ -108,7 +106,7 @@ def derivatives(x):
 
 # 1. ---------------------------------------------------------------- position move events
 @pytest.mark.parametrize('coarse, coarse_before_at_target', [
-    (2 * 2.54e-6, False),      # two linear counts: the slide gets there after the command
+    (2 * COUNT, False),      # two linear counts: the slide gets there after the command
     (1e-3, True),              # 1 mm: near the target while the command still decelerates
 ])
 def test_position_move_event_order_and_settling_time(coarse, coarse_before_at_target):
@@ -186,6 +184,7 @@ def test_a_move_shorter_than_a_tick_shows_no_moving_but_clears_motion_done():
     assert not any(w & S.MOVING for w in rec.word)
 
 
+@pytest.mark.core_slow
 def test_disturbance_during_settling_restarts_the_timer():
     """The same move twice: undisturbed, then shoved back 4 µm (motor and slide together, over
     5 ticks) half-way through the settling time. MOTION_DONE then comes a full settling time
@@ -343,6 +342,7 @@ def test_abort_opens_the_loop_at_once_and_reset_enable_close_it():
     assert not h.axis.status & S.ABORTED
 
 
+@pytest.mark.core_slow
 def test_correct_on_demand_with_motor_feedback_lands_the_slide():
     """<axis>/correct with feedback motor (Galil #CORRECT run by hand): after the reversal the
     slide misses by the backlash (~20 counts); one correction sequence, CORRECTING and MOVING
@@ -632,7 +632,8 @@ def test_stop_that_would_pass_a_soft_limit_brakes_to_it():
     left = limit - h.axis.command_position
     assert stopping_distance(0.08, 0.0, 0.5, 0.0) > left > stopping_distance(0.08, 0.0, A_MAX, 0)
     assert h.axis.stop() == (True, '')
-    assert h.axis.sticky == S.LIMIT
+    h.tick()
+    assert h.axis.status & S.LIMIT                 # from the STOP's tick on
     h.run(0.5, until=done)
     assert max(h.trace.command) == limit == h.trace.command[-1]
     w = h.axis.status

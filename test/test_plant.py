@@ -4,9 +4,7 @@ import math
 import pytest
 
 from motion_ctrl.sim.plant import SlidePlant
-from motion_ctrl.core.registers import INCH
-
-COUNT = INCH / 10000            # one linear count, 2.54 um
+from kit import COUNT, INCH
 
 
 def run(p, volts, seconds, dt=1e-3):

@@ -8,6 +8,7 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+from kit import INCH  # noqa: E402
 from motion_ctrl.core.profile import Profile  # noqa: E402
 from motion_ctrl.core.registers import CONTROLLER_AXIS, ProfileConfig  # noqa: E402
 
@@ -58,16 +59,16 @@ def max_step(rows, key, dt=T):
 
 def test_trapezoid_duration_limits_and_exact_end():
     p = make(jerk=0.0)
-    p.move_to(0.0254)
+    p.move_to(INCH)
     # by hand: accel 0.1 s (5 mm) + cruise 15.4 mm / 0.1 m/s = 0.154 s + decel 0.1 s
     assert p.duration == pytest.approx(0.354, rel=1e-12)
-    assert p.kind == 'position' and p.target == 0.0254 and not p.done
+    assert p.kind == 'position' and p.target == INCH and not p.done
     rows = run(p)
     assert max(abs(r['v']) for r in rows) <= VMAX * (1 + REL)
     assert max(abs(r['a']) for r in rows) <= AMAX * (1 + REL)
     assert max(abs(r['v']) for r in rows) == pytest.approx(VMAX)   # cruise reached
-    assert max(r['p'] for r in rows) <= 0.0254                        # no overshoot
-    assert p.position == 0.0254 and p.raw_position == 0.0254         # exact, no residue
+    assert max(r['p'] for r in rows) <= INCH                        # no overshoot
+    assert p.position == INCH and p.raw_position == INCH         # exact, no residue
     assert p.velocity == 0.0 and p.acceleration == 0.0
     assert p.done and p.at_target and not p.moving
     assert rows[-1]['t'] == pytest.approx(0.354, abs=1.5 * T)
@@ -166,7 +167,7 @@ def test_it_smoothing_removes_acceleration_steps_and_lags_by_tau():
     it = 0.1
     tau = -T / math.log(1 - it)               # 9.49 ms
     p = make(jerk=0.0, smoothing=it)
-    p.move_to(0.0254)
+    p.move_to(INCH)
     raw_duration = p.duration
     rows = run(p)
     # raw trapezoid steps its acceleration by a_max; smoothed one changes by <= IT*a_max per tick
@@ -177,20 +178,20 @@ def test_it_smoothing_removes_acceleration_steps_and_lags_by_tau():
     # during cruise the command trails the raw profile by exactly v*tau (time shift tau)
     cruise = [r for r in rows if abs(r['t'] - 0.18) < T / 2][0]
     assert cruise['rp'] - cruise['p'] == pytest.approx(VMAX * tau, rel=1e-3)
-    half = 0.0254 / 2
+    half = INCH / 2
     assert (_crossing_time(rows, 'p', half) - _crossing_time(rows, 'rp', half)
             == pytest.approx(tau, rel=1e-3))
     # exponential tail: within 1 um after ~4.5 tau, 1 nm after ~11.4 tau, exact
     # (snap below 1e-12 m) after ~18 tau; all well below the raw duration + 25 tau
-    late_um = max(r['t'] for r in rows if abs(r['p'] - 0.0254) >= 1e-6) - raw_duration
-    late_nm = max(r['t'] for r in rows if abs(r['p'] - 0.0254) >= 1e-9) - raw_duration
+    late_um = max(r['t'] for r in rows if abs(r['p'] - INCH) >= 1e-6) - raw_duration
+    late_nm = max(r['t'] for r in rows if abs(r['p'] - INCH) >= 1e-9) - raw_duration
     assert 2 * tau < late_um < 6 * tau
     assert 8 * tau < late_nm < 14 * tau
     assert rows[-1]['t'] - raw_duration < 25 * tau
     # raw finished long before the command: still 'moving' meanwhile
     first_done = next(r for r in rows if r['done'])
     assert first_done['moving'] and first_done['at_target']
-    assert p.position == 0.0254 and p.velocity == 0.0 and p.acceleration == 0.0
+    assert p.position == INCH and p.velocity == 0.0 and p.acceleration == 0.0
     assert not p.moving
 
 
@@ -328,8 +329,8 @@ def test_a_new_profile_runs_the_tables_limits():
 def test_variable_dt_follows_same_path_and_ends_exactly(smoothing):
     ref = make(jerk=JMAX, smoothing=smoothing)
     var = make(jerk=JMAX, smoothing=smoothing)
-    ref.move_to(0.0254)
-    var.move_to(0.0254)
+    ref.move_to(INCH)
+    var.move_to(INCH)
     k = 0
     while ref.moving or var.moving:
         ref.step(T)
@@ -343,5 +344,5 @@ def test_variable_dt_follows_same_path_and_ends_exactly(smoothing):
         assert var.raw_velocity == pytest.approx(ref.raw_velocity, abs=1e-9)
         # smoothing integrated exactly for linear input: only second-order error
         assert var.position == pytest.approx(ref.position, abs=1e-6)
-    assert var.position == 0.0254 and var.at_target
-    assert ref.position == 0.0254 and ref.at_target
+    assert var.position == INCH and var.at_target
+    assert ref.position == INCH and ref.at_target

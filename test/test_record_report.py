@@ -28,6 +28,7 @@ import time
 import numpy as np
 import pytest
 
+from kit import running_slide, spin_for
 from msg_defs.status import Status
 from motion_ctrl.tools import report
 from motion_ctrl.sim.harness import Harness
@@ -218,21 +219,13 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 
 
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
+# The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording is
+# under test here, not the feedback watchdog.
 def _slide(logs, watchdog, context=None):
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import start_slide
-    # The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording
-    # is under test here, not the feedback watchdog.
-    plant, controller = start_slide(watchdog, log_dir=logs)
-    client = SlideClient(name='record_test_client', context=context)
-    try:
-        assert client.wait_ready(30.0), \
-            f'slide did not come up ({client.not_ready()}); logs in {logs}'
-        yield client
-    finally:
-        client.destroy_node()
-        controller.stop()
-        plant.stop()
+    with running_slide(logs, lambda: SlideClient(name='record_test_client', context=context),
+                       watchdog) as s:
+        yield s.client
 
 
 @pytest.fixture(scope='module')
@@ -263,7 +256,7 @@ def recording(slide, tmp_path_factory):
         while time.monotonic() - t0 < RECORD_SECONDS:
             target = targets[len(moves) % len(targets)]
             moves.append((target, slide.move({'x': target}, timeout=5.0)))
-            slide.spin_until(lambda: False, 0.15)
+            spin_for(slide, 0.15)                   # a pause between moves
         seconds = time.monotonic() - t0
         rc, out, err = rec.stop(signal.SIGINT)
         rec = None
@@ -396,7 +389,7 @@ def test_sigterm_leaves_a_readable_bag(slide, tmp_path):
     rec = RecorderProcess(['-o', str(bag)])
     try:
         rec.wait_line('record: recording', 30.0)
-        slide.spin_until(lambda: False, 1.0)
+        spin_for(slide, 1.0)                        # a second of recording
         rc, out, err = rec.stop(signal.SIGTERM)
     finally:
         rec.kill()
@@ -465,13 +458,13 @@ def test_sigkill_then_repair_keeps_all_but_the_last_second(own_slide, tmp_path):
         # Kill in the middle of a move.
         slide.pub_target.publish(md.joint_state(slide.get_clock().now().to_msg(), ['x'],
                                                 [2 * INCH]))
-        slide.spin_until(lambda: False, 0.3)
+        spin_for(slide, 0.3)                        # into the move
         kill_ns, kill_mono = time.time_ns(), time.monotonic()
         rec.proc.send_signal(signal.SIGKILL)
         rec.proc.wait(10.0)
         sampling.set()
         sampler.join()
-        slide.spin_until(lambda: False, 0.3)       # the checker goes on past the kill
+        spin_for(slide, 0.3)                       # the checker goes on past the kill
     finally:
         sampling.set()
         if rec is not None:

@@ -2,26 +2,17 @@
 `target_position`, the true slide read from `plant_states`, the status word from `x/status`."""
 import pytest
 
+from kit import COUNT, INCH, running_slide, spin_for
 from msg_defs.status import Status
 from motion_ctrl.ros.client import SlideClient
-from motion_ctrl.ros.processes import start_slide
-
-INCH = 0.0254
-COUNT = INCH / 10000
 
 
 @pytest.fixture
 def slide(rclpy_session, tmp_path, request, slow_watchdog):
     feedback = request.param
-    plant, controller = start_slide(slow_watchdog | {'x.feedback': feedback}, log_dir=tmp_path)
-    client = SlideClient(name=f'headline_{feedback}')
-    try:
-        assert client.wait_ready(30.0), \
-            f'nodes did not come up ({client.not_ready()}), logs in {tmp_path}'
-        yield client
-    finally:
-        client.destroy_node()
-        assert controller.stop() == 0 and plant.stop() == 0
+    with running_slide(tmp_path, lambda: SlideClient(name=f'headline_{feedback}'),
+                       slow_watchdog | {'x.feedback': feedback}, exit_zero=True) as s:
+        yield s.client
 
 
 @pytest.mark.timeout(120)
@@ -31,7 +22,7 @@ def test_one_inch_after_a_reversal_lands_within_a_count(slide):
         f'no MOTION_DONE, status {Status(slide.status["x"])!r}'
     t = slide.move({'x': INCH}, timeout=10.0)
     assert t is not None, f'no MOTION_DONE, status {Status(slide.status["x"])!r}'
-    slide.spin_until(lambda: False, 0.05)
+    spin_for(slide, 0.05)                # the latest truth after MOTION_DONE
     error = (slide.load_position() - INCH) / COUNT
     assert abs(error) <= 1.0, f'slide {error:+.2f} counts from the target'
 

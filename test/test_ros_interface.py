@@ -9,30 +9,21 @@ from rclpy.parameter import (get_parameter_value, parameter_dict_from_yaml_file,
                              parameter_value_to_python)
 from rclpy.parameter_client import AsyncParameterClient
 
+from kit import COUNT, running_slide, spin_for
+from motion_ctrl.analysis import iso230
 from motion_ctrl.ros.client import SlideClient
 from motion_ctrl.ros.processes import NodeProcess, params_dir
 
-COUNT = 0.0254 / 10000
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
-def three_axes(rclpy_session, tmp_path, node_env, slow_watchdog):
+def three_axes(rclpy_session, tmp_path, slow_watchdog):
     axes = "['x','y','z']"   # quoted: a bare y is YAML for true
-    d = params_dir()
-    plant = NodeProcess('plant_node', d / 'plant.yaml', {'axes': axes},
-                        tmp_path / 'plant.log', env=node_env)
-    controller = NodeProcess('controller_node', d / 'controller.yaml',
-                             {'axes': axes} | slow_watchdog,
-                             tmp_path / 'controller.log', env=node_env)
-    client = SlideClient(axes=('x', 'y', 'z'), name='three_axes_client')
-    try:
-        assert client.wait_ready(30.0), \
-            f'plant + controller with three axes did not come up: {client.not_ready()}'
-        yield client
-    finally:
-        client.destroy_node()
-        assert controller.stop() == 0 and plant.stop() == 0
+    with running_slide(tmp_path, lambda: SlideClient(axes=('x', 'y', 'z'),
+                                                     name='three_axes_client'),
+                       {'axes': axes} | slow_watchdog, {'axes': axes}, exit_zero=True) as s:
+        yield s.client
 
 
 @pytest.mark.timeout(120)
@@ -40,7 +31,7 @@ def test_three_axes_move_to_different_targets_at_once(three_axes):
     targets = {'x': 0.0254, 'y': -0.0127, 'z': 0.0381}
     t = three_axes.move(targets, timeout=10.0)
     assert t is not None, f'not every axis reported MOTION_DONE: {three_axes.status}'
-    three_axes.spin_until(lambda: False, 0.05)
+    spin_for(three_axes, 0.05)                   # the latest truth after MOTION_DONE
     for axis, target in targets.items():
         assert abs(three_axes.truth[f'{axis}_load'] - target) <= 3 * COUNT, axis
     # The registers are independent: slowing y alone leaves x and z as they were.
@@ -94,6 +85,30 @@ def _load(client, params, path, atomically=False) -> dict:
     results = client.answer(lambda: params.load_parameter_file(str(path))).results
     assert len(results) == len(names)
     return dict(zip(names, results))
+
+
+def test_calibration_yaml_loads_with_rclpys_parameter_file_reader(tmp_path):
+    """The calibration's tables file (iso230.params_yaml) as `ros2 param load` reads it: each
+    register with its type, spacings before tables."""
+    from rclpy.parameter import Parameter
+    from test_iso230 import result_for       # a measured error curve with noise
+    targets = iso230.plan_targets(0.0, 0.05, 6)
+    tab = iso230.build_tables(result_for(targets), tolerance=0.25 * COUNT)
+    tab.leadscrew_table[1] = 1e-06                    # repr '1e-06': YAML 1.1 text, not a float
+    path = tmp_path / 'comp.yaml'
+    path.write_text(iso230.params_yaml(tab, 'x', comment='two\nlines'))
+    params = parameter_dict_from_yaml_file(str(path), target_nodes=['controller'])
+    names = list(params)
+    assert names == ['x.backlash_distance', 'x.leadscrew_table_spacing', 'x.leadscrew_table',
+                     'x.backlash_table_spacing', 'x.backlash_table']     # spacings first
+    for name, value in tab.registers('x').items():
+        p = Parameter.from_parameter_msg(params[name])
+        if isinstance(value, list):
+            assert p.type_ == Parameter.Type.DOUBLE_ARRAY
+            assert list(p.value) == pytest.approx(value, rel=1e-15)
+        else:
+            assert p.type_ == Parameter.Type.DOUBLE
+            assert p.value == pytest.approx(value, rel=1e-15)
 
 
 def _refusals(results: dict) -> dict:

@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from motion_ctrl.ros.client import SlideClient  # noqa: E402
-from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
+from motion_ctrl.ros.processes import params_dir, start_slide  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
@@ -27,13 +27,10 @@ def _clean(text: str) -> bool:
     return 'Traceback' not in text and 'Error' not in text
 
 
-def test_nodes_stop_cleanly_on_sigterm(rclpy_session, tmp_path, node_env):
+def test_nodes_stop_cleanly_on_sigterm(rclpy_session, tmp_path):
     """SIGTERM (what systemd, docker stop and launch send) ends both nodes with exit code 0 and
     no traceback, like SIGINT."""
-    plant = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path=tmp_path / 'plant.log',
-                        env=node_env)
-    controller = NodeProcess('controller_node', params_dir() / 'controller.yaml',
-                             log_path=tmp_path / 'controller.log', env=node_env)
+    plant, controller = start_slide(log_dir=tmp_path)
     client = SlideClient(name='lifecycle_probe')
     try:
         assert client.wait_ready(30.0), f'nodes did not come up: {client.not_ready()}'

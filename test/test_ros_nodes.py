@@ -30,8 +30,8 @@ from sensor_msgs.msg import JointState  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
+from kit import COUNT, INCH, running_slide, spin_for  # noqa: E402
 from motion_ctrl.ros.client import SlideClient  # noqa: E402
-from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
@@ -39,8 +39,6 @@ try:                            # the project venv has pytest-timeout: a hung wa
 except ImportError:
     pass
 
-INCH = 0.0254
-COUNT = 2.54e-6                 # one linear (load encoder) count [m]
 # The encoder watchdog is widened (conftest.slow_watchdog: DDS discovery holds streams up for
 # ~0.33 s) and tested on its own at the end, when the plant stops. The `axis` fixture repairs a
 # fault a stall caused, so one stall costs one test, not the module.
@@ -262,27 +260,10 @@ class Slide:
 
 
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory, node_env, slow_watchdog):
-    log_dir = tmp_path_factory.mktemp('slide')
-    plant = NodeProcess('plant_node', params_dir() / 'plant.yaml', log_path=log_dir / 'plant.log',
-                        env=node_env)
-    controller = NodeProcess('controller_node', params_dir() / 'controller.yaml', slow_watchdog,
-                             log_path=log_dir / 'controller.log', env=node_env)
-    probe = None
-    try:
-        probe = Probe()
-        ready = probe.wait_ready(30.0) and probe.params.wait_for_services(10.0)
-        if not ready:
-            pytest.fail(f'plant + controller did not come up ({probe.not_ready()}): '
-                        'controller log:\n'
-                        + LogFile(log_dir / 'controller.log').text()
-                        + '\nplant log:\n' + LogFile(log_dir / 'plant.log').text())
-        yield Slide(plant, controller, probe, log_dir)
-    finally:
-        if probe is not None:
-            probe.destroy_node()
-        controller.stop()
-        plant.stop()
+def slide(rclpy_session, tmp_path_factory, slow_watchdog):
+    with running_slide(tmp_path_factory.mktemp('slide'), Probe, slow_watchdog,
+                       ready=lambda probe: probe.params.wait_for_services(10.0)) as s:
+        yield Slide(s.plant, s.controller, s.client, s.log_dir)
 
 
 def _ready(s: Status) -> bool:
@@ -366,7 +347,8 @@ def _axis_diag(p: Probe, key: str, since: float):
 def test_set_kp_is_applied(axis):
     """`ros2 param set /controller x.kp ...`: accepted, read back, in the loop (the gains
     /diagnostics reports are those the axis runs with), and the loop still moves and settles
-    with it."""
+    with it. (Fails if the node does not stage the new kp, checked by breaking it; that the
+    law then pushes with it is test_servo_loop's test_a_kp_set_is_what_the_loop_pushes_with.)"""
     p = axis
     old = p.get_params('x.kp')['x.kp']
     new = old * 1.2
@@ -488,16 +470,16 @@ def test_parameters_set_together_apply_on_the_same_tick(axis):
     1.5 V bias unclipped. Every command the controller sent (read reliably) shows neither."""
     p = axis
     old = p.get_params('x.bias', 'x.output_limit')
-    p.spin_until(lambda: False, 0.2)
+    spin_for(p, 0.2)
     t0 = p.now()
     rest = max((abs(e) for s, e in p.command_log if s > t0 - 0.2), default=None)
     assert rest is not None and rest < 0.4, f'the axis is not at rest: {rest} V'
     assert p.set_atomically({'x.bias': 1.5, 'x.output_limit': 0.2}).successful
-    p.spin_until(lambda: False, 0.3)
+    spin_for(p, 0.3)
     t1 = p.now()
     result = p.set_atomically(old)
     assert result.successful, result.reason
-    p.spin_until(lambda: False, 0.3)
+    spin_for(p, 0.3)
     during = [e for s, e in p.command_log if t0 < s <= t1]
     after = [e for s, e in p.command_log if s > t1]
     # At rest the output stays within about `rest`; a tick with the bias and not the limit (or
@@ -758,12 +740,12 @@ def test_a_stop_cancels_a_scheduled_target(slide, axis, command):
     pattern = f'cancelled by {command.upper()}'
     before = slide.controller_log.count(pattern)
     _publish_target_ahead(p, far_target(p.position(), 0.05), 1.0)
-    p.spin_until(lambda: False, 0.1)
+    spin_for(p, 0.1)
     assert p.call(command).success
     assert wait_log(p, slide.controller_log, pattern, before + 1), \
         slide.controller_log.text()[-2000:]
     mark = p.mark()
-    p.spin_until(lambda: False, 1.5)                     # past the stamp
+    spin_for(p, 1.5)                     # past the stamp
     assert not any(w & Status.MOVING for w in p.words_since(mark))
     assert abs(p.load_position() - start) < 20 * COUNT
 
@@ -775,12 +757,12 @@ def test_a_newer_immediate_target_cancels_a_scheduled_one(slide, axis):
     pattern = 'cancelled by a newer immediate target'
     before = slide.controller_log.count(pattern)
     _publish_target_ahead(p, far_target(p.position(), 0.05), 1.0)
-    p.spin_until(lambda: False, 0.1)
+    spin_for(p, 0.1)
     target = far_target(p.position(), 0.002)
     p.move_and_wait(target)
     assert wait_log(p, slide.controller_log, pattern, before + 1)
     mark = p.mark()
-    p.spin_until(lambda: False, 1.2)                     # past the stamp
+    spin_for(p, 1.2)                     # past the stamp
     assert not any(w & Status.MOVING for w in p.words_since(mark))
     assert abs(p.load_position() - target) <= 3 * COUNT
 
@@ -793,9 +775,9 @@ def test_a_stop_does_not_lower_an_estop_over_dds(axis):
     with changed(p, {'x.estop_deceleration': 1.0, 'x.stop_deceleration': 0.25}):
         p.publish_target(far_target(p.position(), 0.2))
         assert p.wait_status(lambda s: s & Status.MOVING)
-        p.spin_until(lambda: False, 0.2)
+        spin_for(p, 0.2)
         assert p.call('estop').success
-        p.spin_until(lambda: False, 0.02)
+        spin_for(p, 0.02)
         reply = p.call('stop')
         assert not reply.success and 'ESTOP is in progress' in reply.message, reply.message
         assert p.wait_status(lambda s: s & Status.MOTION_DONE and not s & Status.MOVING)
@@ -871,11 +853,11 @@ def test_a_flood_of_bad_targets_is_logged_once_a_second(slide, axis, case):
     msg, rate, refusal = FLOODS[case]
     raw = serialize_message(msg)
     t0 = p.now()
-    p.spin_until(lambda: False, 2.5)
+    spin_for(p, 2.5)
     lines_before = len(slide.controller_log.text().splitlines())
     t1 = p.now()
     sent = _flood(p, raw, rate, 5.0)
-    p.spin_until(lambda: False, 1.5)                      # the flood's /diagnostics
+    spin_for(p, 1.5)                      # the flood's /diagnostics
     log = slide.controller_log.text().splitlines()[lines_before:]
     quiet = _rates_between(p, t0 + 1.0, t1)
     flooded = _rates_between(p, t1 + 1.0, t1 + 5.0)
@@ -996,7 +978,7 @@ def test_trajectory_over_dds_lands_and_refusals_leave_it_untouched(slide, axis):
     assert p.wait_status(lambda s: s & Status.MOVING), repr(p.word)
     for msg, _ in bad.values():          # (a refusal is logged at most once a second)
         pub.publish(msg)
-        p.spin_until(lambda: False, 1.05)
+        spin_for(p, 1.05)
     assert p.spin_until(lambda: p.done_since(mark), 5.0), repr(p.word)
     p.spin_for_messages(5)
     assert abs(p.ref_log[-1][1] - end) < 1e-12

@@ -20,16 +20,19 @@ def table():
     return {r.name: r for r in scenarios.table()}
 
 
+@pytest.mark.core_slow
 def test_motor_without_compensation_misses_by_the_backlash(table):
     r = table['motor, no compensation']
     assert r.error_counts >= 15          # the problem is real: 20 counts of backlash
     assert r.done_ms is not None         # the motor loop itself is happy
 
 
+@pytest.mark.core_slow
 def test_matched_backlash_compensation_comes_back_within_three_counts(table):
     assert abs(table['motor + backlash comp'].error_counts) <= 3
 
 
+@pytest.mark.core_slow
 def test_leadscrew_table_removes_the_pitch_error_of_the_forward_move(table):
     plain = table['motor + backlash comp'].first_error_counts
     tables = table['motor + backlash + leadscrew tables']
@@ -38,6 +41,7 @@ def test_leadscrew_table_removes_the_pitch_error_of_the_forward_move(table):
     assert abs(tables.error_counts) <= 3
 
 
+@pytest.mark.core_slow
 @pytest.mark.parametrize('name', ['dual', 'sampled'])
 def test_dual_and_sampled_reach_one_count(table, name):
     r = table[name]
@@ -45,11 +49,13 @@ def test_dual_and_sampled_reach_one_count(table, name):
     assert r.done_ms is not None
 
 
+@pytest.mark.core_slow
 def test_sampled_makes_correction_moves_dual_does_not(table):
     assert table['sampled'].corrections >= 1
     assert table['dual'].corrections == 0
 
 
+@pytest.mark.core_slow
 def test_load_only_loop_limit_cycles_across_the_gap(table):
     # A single loop on the linear encoder across the backlash gap: stated, not hidden.
     r = table['load']
@@ -58,6 +64,7 @@ def test_load_only_loop_limit_cycles_across_the_gap(table):
     assert r.output_reversals > 20
 
 
+@pytest.mark.core_slow
 def test_robust_to_a_different_slide():
     """2x backlash and a heavier slide: dual still lands within a count with the same gains;
     motor + compensation matched to the old slide now misses by the unmatched backlash."""
@@ -72,6 +79,7 @@ def test_robust_to_a_different_slide():
     assert rows['motor + backlash comp'].error_counts >= 5
 
 
+@pytest.mark.core_slow
 def test_scenarios_command_prints_the_table(capsys):
     assert scenarios.main([]) == 0
     out = capsys.readouterr().out

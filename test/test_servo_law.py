@@ -16,13 +16,14 @@ import math
 import numpy as np
 import pytest
 
+from kit import COUNT
 from motion_ctrl.core import notch
 from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, LawConfig,
                                         axis_defaults, consistency)
 from motion_ctrl.core.servo_law import ServoLaw
 
 T = 1e-3
-HALF_COUNT = 0.5 * 2.54e-6      # half a linear count of the Galil slide, m
+HALF_COUNT = 0.5 * COUNT        # half a linear count of the Galil slide, m
 
 # Every register the servo law reads, pinned here so that changes of the table's defaults (the
 # tuning is somebody else's) cannot change these hand-worked numbers.
@@ -242,8 +243,8 @@ def test_anti_hunting_half_count_window_with_zero_tolerance():
     s = law(ki=1e5)
     tick(s, 1e-6)                             # |FE| < half a count (1.27 um): anti-hunting
     assert s.anti_hunting and s.integral == 0.0
-    tick(s, 2.54e-6)                          # a whole count: integrates
-    assert not s.anti_hunting and s.integral == pytest.approx(1e5 * 2.54e-6 * T, abs=1e-15)
+    tick(s, COUNT)                          # a whole count: integrates
+    assert not s.anti_hunting and s.integral == pytest.approx(1e5 * COUNT * T, abs=1e-15)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 watchdog, the loop-closing gate, scheduled targets and register sets applied together."""
 import pytest
 
+from kit import COUNT
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.registers import AXIS_REGISTERS, CorrectionConfig, axis_defaults
 from motion_ctrl.core.servo_loop import STREAM_SETTLE, ServoLoop
@@ -38,6 +39,30 @@ def test_the_loop_closes_after_the_stream_has_run_its_settling_time():
     sim = _loop(sim_time=True)
     sim.feedback('x', 0, 0, 0.0)
     assert sim.tick(0.0).names == ['x'] and sim.axes['x'].enabled
+
+
+def test_a_kp_set_is_what_the_loop_pushes_with_from_the_next_tick():
+    """`ros2 param set /controller x.kp`: the node stages it (as here) and from the next tick
+    the axis pushes harder by exactly the new gain times its following error (the other terms
+    are the same: at rest, the slide held 10 counts off). test_ros_nodes' test_set_kp_is_applied
+    checks the node stages it; this, that the law runs with it."""
+    def outputs(kp_factor):
+        loop = _loop()
+        _run(loop, 0.0, 1.0)
+        kp = loop.current('x')['kp']
+        if kp_factor != 1.0:
+            loop.stage('x', {'kp': kp * kp_factor})
+        out = []
+        for k in range(5):
+            loop.feedback('x', 0, 10, 1.0 + k * T)
+            out.append((loop.tick(1.0 + k * T).outputs[0], loop.axes['x'].following_error))
+        return kp, out
+    kp, before = outputs(1.0)
+    _, after = outputs(1.2)
+    assert before[0][1] == pytest.approx(-10 * COUNT)
+    for (old, error), (new, same_error) in zip(before, after):
+        assert same_error == error
+        assert new - old == pytest.approx(0.2 * kp * error, rel=1e-9), (old, new)
 
 
 def test_feedback_fault_after_the_timeout_logged_once():
@@ -108,8 +133,8 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     loop says so once."""
     from motion_ctrl.core.dual_loop import SampledCorrection
     c = SampledCorrection(CorrectionConfig.of(dict(
-        correction_tolerance=2 * 2.54e-6, correction_max_moves=200,
-        load_counts_per_m=1 / 2.54e-6, settling_time=0.02)))
+        correction_tolerance=2 * COUNT, correction_max_moves=200, load_counts_per_m=1 / COUNT,
+        settling_time=0.02)))
     c.start_now()
 
     def settled(error_counts):
@@ -117,12 +142,12 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
         for _ in range(200):
             v2 = c.update(1e-3, profile_done=True, motor_settled=True, motor_counts=0,
                           load_counts=0, load_error_counts=error_counts, motor_error=0.0,
-                          load_error=error_counts * 2.54e-6)
+                          load_error=error_counts * COUNT)
             if v2 is not None or c.phase == c.DONE:
                 return v2
         return None
-    assert settled(20) == pytest.approx(20 * 2.54e-6)          # first correction: V2 = V1
-    assert settled(-30) == pytest.approx(-30 * 2.54e-6)        # overshot: still corrected
+    assert settled(20) == pytest.approx(20 * COUNT)          # first correction: V2 = V1
+    assert settled(-30) == pytest.approx(-30 * COUNT)        # overshot: still corrected
     assert settled(81) is None and c.phase == c.DONE            # > 4 × the first: no more
     assert c.diverged == (20, 81) and c.moves == 2
 

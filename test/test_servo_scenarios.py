@@ -19,14 +19,13 @@ import math
 import numpy as np
 import pytest
 
+from kit import COUNT, INCH, LOAD_COUNTS_PER_M, MOTOR_COUNTS_PER_M
 from msg_defs.status import Status
 from motion_ctrl.core import notch
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.sim.plant import SlidePlant
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 
-INCH = 0.0254
-COUNT = INCH / 10000            # one linear (load) encoder count, 2.54 um
 T = 1e-3
 
 # The Galil backlash slide: 1 in = 40,000 motor counts = 10,000 linear counts, 20 counts of
@@ -37,7 +36,7 @@ PLANT = dict(lead=0.2 * INCH, motor_counts_per_rev=8000.0, load_resolution=COUNT
              screw_damping=200.0, torque_constant=0.1, amplifier_gain=0.5, amplifier_limit=10.0,
              motor_viscous=1.0e-5, motor_coulomb=0.004, motor_stiction=0.006,
              slide_viscous=50.0, slide_coulomb=20.0, slide_stiction=25.0,
-             pitch_error_slope=1.0e-4, pitch_error_amplitude=2.54e-6, pitch_error_period=INCH,
+             pitch_error_slope=1.0e-4, pitch_error_amplitude=COUNT, pitch_error_period=INCH,
              travel_min=-0.55, travel_max=0.55, brake=0)
 
 # Servo registers pinned for every scenario; each test overrides what it is about.
@@ -47,7 +46,8 @@ BASE = dict(mode='position_pid', feedback='dual', kp=30000.0, ki=0.0, kd=160.0, 
             deadband_tolerance=0.0, notch_n1=0.0, notch_n2=0.0, notch_d1=0.0, notch_d2=0.0,
             position_error_limit=0.0, following_error_warning=0.0, following_error_fatal=0.0,
             backlash_distance=0.0, max_velocity=1.0, max_acceleration=100.0, max_jerk=0.0,
-            smoothing=1.0, motor_counts_per_m=40000 / INCH, load_counts_per_m=10000 / INCH)
+            smoothing=1.0, motor_counts_per_m=MOTOR_COUNTS_PER_M,
+            load_counts_per_m=LOAD_COUNTS_PER_M)
 
 
 def make(plant=None, **registers) -> Harness:
@@ -129,6 +129,7 @@ def hold(disturbance, **extra):
                 hz=peak_hz(slide), integral=h.axis.servo.integral)
 
 
+@pytest.mark.core_slow
 @pytest.mark.parametrize('disturbance', ['knock', -8], ids=['knock_10mm_s', 'step_-8_counts'])
 def test_plain_integrator_hunts_and_deadband_tolerance_stops_it(disturbance):
     plain = hold(disturbance)

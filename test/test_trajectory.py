@@ -355,6 +355,7 @@ def test_contour_error_is_the_distance_to_the_polyline():
     assert contour_error(hairpin, [[0.5, 0.4 * MM]]) == pytest.approx([0.4 * MM], abs=1e-15)
 
 
+@pytest.mark.core_slow
 def test_paths_follow_the_trajectory_exactly():
     """What the servo loop samples per tick (Trajectory.paths, evaluated from the polynomial
     coefficients) is the trajectory itself, in every segment kind, and holds at the end."""

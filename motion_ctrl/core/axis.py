@@ -153,12 +153,6 @@ class Axis(AxisCommands):
         return status_word(self._faults)
 
     @property
-    def sticky(self) -> Status:
-        """LIMIT: a target was refused or a jog stopped at a soft limit (until the next accepted
-        command or reset)."""
-        return status_word(self._sticky)
-
-    @property
     def correcting(self) -> bool:
         return self.sampled.correcting
 

@@ -257,11 +257,6 @@ class BacklashCompensation:
         return self._correction
 
     @property
-    def reversal_reference(self):
-        """Running extreme in the current direction (m), or None before the first reset/step."""
-        return self._extreme
-
-    @property
     def nominal_position(self):
         """Last nominal commanded position passed in: the one to REPORT (None before any)."""
         return self._nominal

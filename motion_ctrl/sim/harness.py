@@ -81,11 +81,12 @@ class Harness:
             tr.status.append(int(a.status))
             tr.following_error.append(a.following_error)
 
-    def run(self, seconds: float, until=None) -> bool:
-        """Run for `seconds`, or until `until(harness)` is true; returns whether it became true."""
+    def run(self, seconds: float, until=None, disturbance=None) -> bool:
+        """Run for `seconds`, or until `until(harness)` is true; returns whether it became true.
+        `disturbance(harness)`, if given, runs after every tick (as in `tick`)."""
         n = round(seconds / self.T)
         for _ in range(n):
-            self.tick()
+            self.tick(disturbance)
             if until is not None and until(self):
                 return True
         return False

@@ -1,0 +1,83 @@
+"""The test kit: units, and the slide (plant + controller as processes, with a client) that the
+DDS tests run against.
+
+Imports no ROS package itself (the core tests take their units from here); ROS comes in when a
+slide starts. The ROS domain, the node environment and the widened encoder watchdog stay the
+fixtures of conftest (module_domain, own_domain, slow_watchdog).
+"""
+from __future__ import annotations
+
+import contextlib
+import pathlib
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M, MOTOR_COUNTS_PER_M
+
+__all__ = ['INCH', 'COUNT', 'MOTOR_COUNT', 'LOAD_COUNTS_PER_M', 'MOTOR_COUNTS_PER_M', 'Slide',
+           'running_slide', 'spin_for']
+
+COUNT = 1 / LOAD_COUNTS_PER_M          # one linear (slide encoder) count [m]: 2.54 um
+MOTOR_COUNT = 1 / MOTOR_COUNTS_PER_M   # one motor encoder count, in slide travel [m]
+
+
+def spin_for(client, seconds: float) -> None:
+    """Run `client`'s callbacks for `seconds` of wall time, where the time is the point (cruise
+    a while, record a while, let a stamp pass); to wait for something, spin_until it."""
+    end = time.monotonic() + seconds
+    while (left := end - time.monotonic()) > 0:
+        client.executor_.spin_once(timeout_sec=min(0.01, left))
+
+
+@dataclass
+class Slide:
+    """The nodes of a running slide and the client watching it. A test that replaces a node
+    (a restarted controller) assigns it here, and that one is stopped at the end."""
+    plant: Any                  # motion_ctrl.ros.processes.NodeProcess
+    controller: Any
+    client: Any                 # a SlideClient
+    log_dir: pathlib.Path
+
+    def log(self, node: str) -> str:
+        path = self.log_dir / f'{node}.log'
+        return path.read_text(errors='replace') if path.exists() else ''
+
+
+@contextlib.contextmanager
+def running_slide(log_dir, make_client: Callable[[], Any], controller_params: dict | None = None,
+                  plant_params: dict | None = None, *, client_first: bool = False,
+                  ready: Callable[[Any], bool] | None = None, timeout: float = 30.0,
+                  exit_zero: bool = False) -> Iterator[Slide]:
+    """Plant and controller as processes (motion_ctrl.ros.processes.start_slide: the params
+    files plus these overrides, logs in `log_dir`) and the client `make_client()` makes (before
+    the nodes with client_first: a reader joining later holds the plant's streams up, see
+    conftest.slow_watchdog); yields when the client sees the slide ready (SlideClient.wait_ready,
+    then `ready(client)` if given), else fails with what was missing and the nodes' logs.
+
+    At the end the client goes and both nodes stop with SIGINT; exit_zero: both must exit 0.
+    The nodes inherit this process's environment: the module's ROS domain (conftest
+    module_domain), or the test's (own_domain)."""
+    from motion_ctrl.ros.processes import start_slide
+    log_dir = pathlib.Path(log_dir)
+    client = make_client() if client_first else None
+    plant, controller = start_slide(controller_params, plant_params, log_dir=log_dir)
+    slide = Slide(plant, controller, client, log_dir)
+    try:
+        if client is None:
+            client = slide.client = make_client()
+        if not (client.wait_ready(timeout) and (ready is None or ready(client))):
+            import pytest
+            missing = client.not_ready() or 'the ready check failed'
+            pytest.fail(f'plant + controller did not come up ({missing}); logs in {log_dir}'
+                        '\ncontroller log:\n'
+                        f'{slide.log("controller")[-3000:]}\nplant log:\n'
+                        f'{slide.log("plant")[-3000:]}')
+        yield slide
+    finally:
+        if client is not None:
+            client.destroy_node()
+        codes = {'controller': slide.controller.stop(), 'plant': slide.plant.stop()}
+    if exit_zero:
+        assert codes == {'controller': 0, 'plant': 0}, f'exit codes {codes}; logs in {log_dir}'
