@@ -31,7 +31,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal as sps
 
 __all__ = ['Excitation', 'Segment', 'log_chirp', 'prbs', 'stepped_sine', 'from_registers',
            'PRBS_BAND_FRACTION', 'SIGNALS']
@@ -156,6 +155,7 @@ def log_chirp(amplitude, band, duration, sample_rate, *, amplitude_exponent=0.0)
                          f'({1.0 / lo:g} s at {lo:g} Hz)')
     t = np.arange(n) / fs
     sweep = n / fs      # the sweep's own length: exactly the ticks generated
+    from scipy import signal as sps   # here: scipy.signal costs ~1 s of every node's start
     wave = sps.chirp(t, f0=lo, t1=sweep, f1=hi, method='logarithmic', phi=-90.0)
     freq = lo * (hi / lo) ** (t / sweep)
     return Excitation('log_chirp', _shape(freq, amp, p, lo, hi) * wave, fs, amp, (lo, hi))
@@ -188,6 +188,7 @@ def prbs(amplitude, band, duration, sample_rate, *, hold_ticks=None, nbits=None)
         nbits = _int('nbits', nbits, 2)
         if nbits > 32:
             raise ValueError(f'nbits must be <= 32, got {nbits}')
+    from scipy import signal as sps
     seq = sps.max_len_seq(nbits)[0].astype(float) * 2.0 - 1.0
     period = seq.size * hold
     if period > n:

@@ -53,12 +53,14 @@ import bisect
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from scipy.interpolate import BPoly, CubicHermiteSpline, CubicSpline, PPoly
-from scipy.optimize import brentq
-from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    from scipy.interpolate import BPoly, PPoly
+# scipy's interpolate / optimize / spatial are imported where used: they cost ~0.5 s of every
+# controller's start, and a controller that never receives a trajectory never needs them.
 
 __all__ = ['AxisLimits', 'AxisPath', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
            'rounded_square', 'contour_error', 'START_TOLERANCE', 'REST_TOLERANCE',
@@ -227,6 +229,7 @@ def _points_in_limits_reason(names, P: np.ndarray, limits) -> str | None:
 def _interpolant(t, P, V, A, start: Sequence[AxisState]):
     """(kind, knot times, position polynomial of all axes, offset of point 0 among the knots):
     the axis's state is the knot at t=0 (inserted before point 0, or point 0 itself)."""
+    from scipy.interpolate import CubicHermiteSpline, CubicSpline
     s = np.array(start, dtype=float)          # (axes, 3): p, v, a
     if t[0] > 0:
         x = np.concatenate([[0.0], t])
@@ -257,6 +260,7 @@ def _quintic_hermite(x, P, V, A) -> BPoly:
     servo executor), and its result is the same (test_trajectory compares the two).
     On [0, h], p(0) = c0, p'(0) = 5 (c1 - c0) / h, p''(0) = 20 (c2 - 2 c1 + c0) / h², and the
     mirror image at h."""
+    from scipy.interpolate import BPoly
     h = np.diff(x)[:, None]
     p0, v0, a0, p1, v1, a1 = P[:-1], V[:-1], A[:-1], P[1:], V[1:], A[1:]
     c = np.stack([p0, p0 + v0 * h / 5, p0 + 2 * v0 * h / 5 + a0 * h ** 2 / 20,
@@ -320,6 +324,7 @@ def _motion_reason(names, x, ppolys, positions, offset, limits) -> str | None:
 
 def _plan(names, times, positions, velocities, accelerations, start, limits):
     """Trajectory or the reason it is refused (see the module docstring for the order)."""
+    from scipy.interpolate import PPoly
     reason = _names_reason(names, limits)
     if reason:
         return reason
@@ -624,6 +629,7 @@ def rounded_square(center: Sequence[float], side: float, corner_radius: float, s
     total, s_of_t = _ramp_profile(length, speed, ramp_time)
     junctions = [j * (run + math.pi * r / 2) + d for j in range(4) for d in (0.0, run)]
     junctions = [a for a in np.mod(np.array(junctions) - (half - r), length) if 0 < a < length]
+    from scipy.optimize import brentq
     times = [brentq(lambda t, a=a: float(s_of_t(t)[0]) - a, 0.0, total, xtol=1e-15)
              for a in junctions]
     t = _grid(total, ramp_time, dt, start_time, times)
@@ -646,6 +652,7 @@ def contour_error(path_xy, actual_xy) -> np.ndarray:
     act = np.asarray(actual_xy, dtype=float)
     if path.ndim != 2 or path.shape[1] != 2 or act.ndim != 2 or act.shape[1] != 2:
         raise ValueError('path_xy and actual_xy must be (n, 2) arrays')
+    from scipy.spatial import cKDTree
     tree = cKDTree(path)
     d0 = tree.query(act)[0]
     if len(path) == 1 or len(act) == 0:
