@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
+from typing import TypeVar
 
 INCH = 0.0254
 MOTOR_COUNTS_PER_M = 40000 / INCH     # 8,000 counts/rev on a 5.08 mm lead
@@ -382,8 +383,21 @@ def _of(cls, values: dict):
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in picked.items()})
 
 
+_C = TypeVar('_C', bound='Config')
+
+
+class Config:
+    """A consumer's registers, read-only. `of(values)` makes one from a dict of register values
+    (extra keys ignored), refused with the table's reasons (ValueError) when one is bad."""
+    __slots__ = ()
+
+    @classmethod
+    def of(cls: type[_C], values: dict) -> _C:
+        return _of(cls, values)
+
+
 @dataclass(frozen=True, slots=True)
-class LawConfig:
+class LawConfig(Config):
     """The servo law's registers (PMAC Ixx29..39, 63, 67..69; RMC deadband)."""
     mode: str
     kp: float
@@ -412,18 +426,13 @@ class LawConfig:
         object.__setattr__(self, 'pid', self.mode.endswith('pid'))
         object.__setattr__(self, 'integrate_at_rest', self.integration_mode == 'at_rest')
 
-    @classmethod
-    def of(cls, values: dict) -> LawConfig:
-        """From a dict of (validated) register values; extra keys are ignored."""
-        return _of(cls, values)
-
     @property
     def notch(self) -> tuple[float, float, float, float]:
         return (self.notch_n1, self.notch_n2, self.notch_d1, self.notch_d2)
 
 
 @dataclass(frozen=True, slots=True)
-class SettlingConfig:
+class SettlingConfig(Config):
     """The settling criteria (RMP PositionToleranceFine/Coarse, VelocityTolerance,
     SettlingTime)."""
     fine_position_tolerance: float
@@ -431,39 +440,27 @@ class SettlingConfig:
     velocity_tolerance: float
     settling_time: float
 
-    @classmethod
-    def of(cls, values: dict) -> SettlingConfig:
-        return _of(cls, values)
-
 
 @dataclass(frozen=True, slots=True)
-class CorrectionConfig:
+class CorrectionConfig(Config):
     """Galil's sampled dual loop: when the correction moves end."""
     correction_tolerance: float
     correction_max_moves: int
     load_counts_per_m: float
     settling_time: float
 
-    @classmethod
-    def of(cls, values: dict) -> CorrectionConfig:
-        return _of(cls, values)
-
 
 @dataclass(frozen=True, slots=True)
-class ProfileConfig:
+class ProfileConfig(Config):
     """The move generator's limits and smoothing (Galil SP / AC / DC / IT, PMAC Ixx16..21)."""
     max_velocity: float
     max_acceleration: float
     max_jerk: float
     smoothing: float
 
-    @classmethod
-    def of(cls, values: dict) -> ProfileConfig:
-        return _of(cls, values)
-
 
 @dataclass(frozen=True, slots=True)
-class BacklashConfig:
+class BacklashConfig(Config):
     """Backlash and leadscrew compensation (PMAC Ixx85..87, DEFINE BLCOMP, DEFINE COMP)."""
     backlash_distance: float
     backlash_takeup_rate: float
@@ -472,10 +469,6 @@ class BacklashConfig:
     backlash_table_spacing: float
     leadscrew_table: tuple
     leadscrew_table_spacing: float
-
-    @classmethod
-    def of(cls, values: dict) -> BacklashConfig:
-        return _of(cls, values)
 
 
 def defaults(cls):
