@@ -17,6 +17,7 @@ simulated slide.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import pathlib
@@ -368,20 +369,19 @@ def _spawn(args, out: pathlib.Path):
     return plant, controller
 
 
-def main(argv=None) -> int:
-    args = parser().parse_args(argv)
-    if args.lockstep and not args.spawn:
-        print('calibrate: --lockstep needs --spawn', file=sys.stderr)
-        return 2
-    if args.targets < 2 or args.cycles < 2:
-        print('calibrate: at least 2 targets and 2 cycles', file=sys.stderr)
-        return 2
+@contextlib.contextmanager
+def axis_session(args, tool: str, services: bool = False):
+    """The ROS side of a tool run on one axis (calibrate, identify): its output folder, the
+    nodes when asked (--spawn, --lockstep), the tool's client, ready. Yields (client,
+    AxisUnderTest, out); stops everything after. Raises CalibrationError when the controller
+    is not ready."""
     from motion_ctrl.ros import ros_env
     ros_env.private_domain()
     import datetime
     import rclpy
     from motion_ctrl.ros.client import SlideClient
-    out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/calibrate-%Y%m%d-%H%M%S'))
+    out = pathlib.Path(args.out or datetime.datetime.now().strftime(
+        f'out/{tool}-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
     if args.lockstep:
         os.environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'     # as the spawned nodes
@@ -392,14 +392,10 @@ def main(argv=None) -> int:
     # spawned controller has a wide feedback_timeout for that (SPAWN_CONTROLLER).
     nodes = _spawn(args, out) if args.spawn else ()
     rclpy.init()
-    client = SlideClient(axes=(args.axis,), name='calibrate', truth=False)
-    axis = AxisUnderTest(client, args.axis)
-    start = time.monotonic()
+    client = SlideClient(axes=(args.axis,), name=tool, truth=False, services=services)
     try:
         if not client.wait_ready(30.0):
-            print(f'calibrate: the controller is not ready ({client.not_ready()})',
-                  file=sys.stderr)
-            return 1
+            raise CalibrationError(f'the controller is not ready ({client.not_ready()})')
         if nodes:
             # Just started: the controller closes its loop on the first encoder samples, maybe
             # before its `command` reaches the plant (a move then runs into
@@ -408,15 +404,29 @@ def main(argv=None) -> int:
             import msg_defs as md
             client.spin_until(lambda: client.count_subscribers(md.COMMAND) > 0, 20.0)
             client.spin_until(lambda: False, 1.0)
-        result = calibrate(axis, args, out)
-    except CalibrationError as e:
-        print(f'calibrate: {e}', file=sys.stderr)
-        return 1
+        yield client, AxisUnderTest(client, args.axis), out
     finally:
         client.destroy_node()
         rclpy.try_shutdown()
         for n in reversed(nodes):
             n.stop()
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    if args.lockstep and not args.spawn:
+        print('calibrate: --lockstep needs --spawn', file=sys.stderr)
+        return 2
+    if args.targets < 2 or args.cycles < 2:
+        print('calibrate: at least 2 targets and 2 cycles', file=sys.stderr)
+        return 2
+    start = time.monotonic()
+    try:
+        with axis_session(args, 'calibrate') as (_client, axis, out):
+            result = calibrate(axis, args, out)
+    except CalibrationError as e:
+        print(f'calibrate: {e}', file=sys.stderr)
+        return 1
     mode = ('lockstep simulation' if args.lockstep else 'DDS') if args.spawn else 'DDS'
     print(f'calibrate: done in {time.monotonic() - start:.1f} s ({mode}; tests '
           + ', '.join(f'{k} {v:.1f} s' for k, v in result['seconds'].items()) + ')')

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import pathlib
 import sys
 import time
@@ -358,41 +357,16 @@ def main(argv=None) -> int:
         print(f'identify: --{bad[0].replace("_", "-")} must be > 0 (points, samples: >= 2)',
               file=sys.stderr)
         return 2
-    from motion_ctrl.ros import ros_env
-    from motion_ctrl.tools.calibrate import AxisUnderTest, CalibrationError, _spawn
-    ros_env.private_domain()
-    import datetime
-    import rclpy
     from rclpy.parameter import parameter_value_to_python
-    from motion_ctrl.ros.client import SlideClient
-    out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/identify-%Y%m%d-%H%M%S'))
-    out.mkdir(parents=True, exist_ok=True)
-    if args.lockstep:
-        os.environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'     # as the spawned nodes
-    nodes = _spawn(args, out) if args.spawn else ()
-    rclpy.init()
-    client = SlideClient(axes=(args.axis,), name='identify', truth=False, services=True)
-    axis = AxisUnderTest(client, args.axis)
+    from motion_ctrl.tools.calibrate import CalibrationError, axis_session
     try:
-        if not client.wait_ready(30.0):
-            print(f'identify: the controller is not ready ({client.not_ready()})',
-                  file=sys.stderr)
-            return 1
-        if nodes:
-            import msg_defs as md     # (see calibrate: the plant must read `command` first)
-            client.spin_until(lambda: client.count_subscribers(md.COMMAND) > 0, 20.0)
-            client.spin_until(lambda: False, 1.0)
-        rate = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]
-        args.servo_rate = float(parameter_value_to_python(rate))  # type: ignore[arg-type]
-        identify(axis, args, out)
+        with axis_session(args, 'identify', services=True) as (client, axis, out):
+            rate = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]
+            args.servo_rate = float(parameter_value_to_python(rate))  # type: ignore[arg-type]
+            identify(axis, args, out)
     except (IdentifyError, CalibrationError) as e:
         print(f'identify: {e}', file=sys.stderr)
         return 1
-    finally:
-        client.destroy_node()
-        rclpy.try_shutdown()
-        for n in reversed(nodes):
-            n.stop()
     return 0
 
 
