@@ -40,6 +40,8 @@ class Visitors:
         self.interval, self.count, self.parallel, self.env = interval, count, parallel, env
         self.started = self.finished = 0
         self.failed: list[str] = []
+        self.spans: list[tuple[float, float]] = []     # (start, end) epoch s of each visitor
+        self._born: dict[int, float] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -59,9 +61,11 @@ class Visitors:
         while not self._stop.is_set() and (self.count is None or self.started < self.count):
             alive = [p for p in alive if not self._reap(p)]
             if len(alive) < self.parallel:
-                alive.append(subprocess.Popen(
+                p = subprocess.Popen(
                     [sys.executable, '-m', 'motion_ctrl.ros.visitor'], env=self.env,
-                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
+                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                self._born[p.pid] = time.time()
+                alive.append(p)
                 self.started += 1
             self._stop.wait(self.interval)
         for p in alive:
@@ -72,6 +76,7 @@ class Visitors:
         if p.poll() is None:
             return False
         out = p.stdout.read() if p.stdout else ''
+        self.spans.append((self._born.pop(p.pid, 0.0), time.time()))
         self.finished += 1
         if p.returncode != 0:
             self.failed.append(out.strip().splitlines()[-1] if out.strip() else
@@ -100,8 +105,11 @@ class Soak:
         word = c.status[self.axis] or 0
         if took is None or word & (Status.FEEDBACK_FAULT | Status.FOLLOWING_ERROR_FATAL):
             self.faults.append(repr(Status(word)))
-            c.call('reset')
-            c.call('enable', True)
+            try:
+                c.call('reset')
+                c.call('enable', True)
+            except TimeoutError as e:       # counted; the next move tells whether it recovered
+                self.faults.append(f'reset / enable unanswered ({e})')
             c.spin_until(lambda: False, 0.2)
             return
         c.spin_until(lambda: False, 0.05)         # the latest truth after MOTION_DONE
@@ -113,6 +121,52 @@ class Soak:
         worst = max((abs(e) for e in self.errors), default=float('nan'))
         return (f'moves {self.moves}, faults {len(self.faults)}, within 1 count '
                 f'{self.within_1_count}/{self.moves} (worst {worst:.2f} counts)')
+
+
+class HostSteal(threading.Thread):
+    """Time this VM's virtual CPUs were taken by the host (the `steal` column of /proc/stat),
+    sampled every 5 ms: a process of any priority stops while its CPU is stolen, so a loop with
+    a 20 ms watchdog cannot tell a steal burst from a ROS stall. Each event: (epoch time,
+    jiffies stolen since the previous sample)."""
+
+    def __init__(self):
+        super().__init__(name='steal', daemon=True)
+        self.events: list[tuple[float, int]] = []
+        self.running = True
+
+    @staticmethod
+    def _steal() -> int:
+        with open('/proc/stat') as f:
+            return int(f.readline().split()[8])
+
+    def run(self) -> None:
+        try:
+            prev = self._steal()
+        except (OSError, IndexError, ValueError):
+            return                                  # not Linux, or no steal accounting
+        while self.running:
+            time.sleep(0.005)
+            now = self._steal()
+            if now > prev:
+                self.events.append((time.time(), now - prev))
+            prev = now
+
+    def near(self, stamp: float, window: float = 0.2) -> bool:
+        """Whether the host stole CPU time within `window` s of `stamp` (epoch s)."""
+        return any(abs(t - stamp) <= window for t, _ in self.events)
+
+
+def fault_stamps(log: str) -> list[float]:
+    """Epoch stamps of the FEEDBACK_FAULT and amplifier-fault lines of a node's log
+    ('[LEVEL] [1795460490.580106665] [node]: ...')."""
+    stamps = []
+    for line in log.splitlines():
+        if 'FEEDBACK_FAULT' in line or 'amplifier fault' in line:
+            try:
+                stamps.append(float(line.split('] [', 1)[1].split(']', 1)[0]))
+            except (IndexError, ValueError):
+                pass
+    return stamps
 
 
 def main(argv=None) -> int:
@@ -146,6 +200,8 @@ def main(argv=None) -> int:
     rclpy.init()
     client = SlideClient(services=True)
     visitors = recorder = None
+    steal = HostSteal()
+    steal.start()
     try:
         if not client.wait_ready(30.0):
             print(f'soak: the nodes did not come up ({client.not_ready()})', file=sys.stderr)
@@ -180,6 +236,13 @@ def main(argv=None) -> int:
     print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
     for f in soak.faults:
         print(f'soak: fault: {f}')
+    steal.running = False
+    stamps = fault_stamps(log) + fault_stamps((out / 'plant.log').read_text())
+    alive = sum(any(a <= s <= b for a, b in visitors.spans) for s in stamps)
+    print(f'soak: host steal: {sum(j for _, j in steal.events)} jiffies in '
+          f'{len(steal.events)} bursts; of the {len(stamps)} FEEDBACK_FAULT / amplifier-fault '
+          f'lines, {sum(steal.near(s) for s in stamps)} within 0.2 s of a steal burst, {alive} '
+          'while a visitor was alive')
     if a.record:
         print(f'soak: recorder exit code {recorder.returncode if recorder else None}')
     ok = (not soak.faults and soak.within_1_count == soak.moves and not visitors.failed
