@@ -53,7 +53,7 @@ import numbers
 from msg_defs.status import Status
 from motion_ctrl.core import soft_limits as limits
 from motion_ctrl.core.dual_loop import SampledCorrection
-from motion_ctrl.core.gather import Gather
+from motion_ctrl.core.gather import Gather, base_motion
 from motion_ctrl.core.profile import Profile
 from motion_ctrl.core.settling import Settling
 
@@ -187,25 +187,13 @@ class AxisCommands:
         if not (_number(base_velocity) and math.isfinite(base_velocity)):
             return False, f'{self.name}: base velocity {base_velocity!r} is not a finite number'
         v = float(base_velocity)
-        reserve = 0.0
+        reserve, refusal = base_motion(
+            v, excitation.duration + self.r['settling_time'], budget, self.command_position,
+            (self._soft_lo, self._soft_hi), self._max_vel, self._max_acc, self._max_jerk,
+            self.servo_period)
+        if refusal:
+            return False, f'{self.name}: excitation refused: {refusal}'
         if v:
-            if abs(v) > self._max_vel:
-                return False, (f'{self.name}: excitation refused: base velocity {v:g} m/s is '
-                               f'above max_velocity {self._max_vel:g} m/s')
-            # braking at max_acceleration, plus two ticks of travel (as the jog's limit guard)
-            reserve = (limits.stopping_distance(abs(v), 0.0, self._max_acc, self._max_jerk)
-                       + 2.0 * abs(v) * self.servo_period)
-            travel = 2.0 * reserve + abs(v) * (excitation.duration + self.r['settling_time'])
-            if travel > budget:
-                return False, (f'{self.name}: excitation refused: the base motion at {v:g} m/s '
-                               f'travels {travel * 1e3:.4g} mm with its ramps over '
-                               f'{excitation.duration:g} s, more than the travel budget '
-                               f'{budget * 1e3:g} mm')
-            end = self.command_position + math.copysign(travel, v)
-            if not self._soft_lo <= end <= self._soft_hi:
-                return False, (f'{self.name}: excitation refused: the base motion would reach '
-                               f'{end:g} m, outside the soft limits [{self._soft_lo:g}, '
-                               f'{self._soft_hi:g}]')
             ok, reason = self.jog(v)
             if not ok:
                 return False, reason

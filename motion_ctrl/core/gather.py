@@ -20,12 +20,42 @@ distance — is kept in hand, so the slide stops inside the budget). Plain Pytho
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from motion_ctrl.core.excitation import Excitation
+from motion_ctrl.core.soft_limits import stopping_distance
 
 # The records, one column each, in this order.
 COLUMNS = ('excitation', 'output', 'motor', 'load', 'command')
+
+
+def base_motion(v: float, seconds: float, budget: float, start: float,
+                soft_limits: tuple[float, float], max_velocity: float, max_acceleration: float,
+                max_jerk: float, servo_period: float) -> tuple[float, str | None]:
+    """A base motion at `v` [m/s] under a run of `seconds` (Beckhoff TwinCAT: a slow constant
+    velocity keeps stiction and the backlash gap out of the measurement): the travel to keep
+    in hand for braking (at max_acceleration, plus two ticks, as the jog's limit guard), and
+    why it cannot run, or None. Its nominal travel, both ramps and the run, must fit in the
+    budget and in the soft limits from `start`."""
+    if not v:
+        return 0.0, None
+    if abs(v) > max_velocity:
+        return 0.0, f'base velocity {v:g} m/s is above max_velocity {max_velocity:g} m/s'
+    reserve = (stopping_distance(abs(v), 0.0, max_acceleration, max_jerk)
+               + 2.0 * abs(v) * servo_period)
+    travel = 2.0 * reserve + abs(v) * seconds
+    if travel > budget:
+        return reserve, (f'the base motion at {v:g} m/s travels {travel * 1e3:.4g} mm with its '
+                         f'ramps over {seconds:g} s, more than the travel budget '
+                         f'{budget * 1e3:g} mm')
+    end = start + math.copysign(travel, v)
+    lo, hi = soft_limits
+    if not lo <= end <= hi:
+        return reserve, (f'the base motion would reach {end:g} m, outside the soft limits '
+                         f'[{lo:g}, {hi:g}]')
+    return reserve, None
 
 
 class Gather:
