@@ -50,7 +50,8 @@ from motion_ctrl.core.registers import yaml_float
 
 __all__ = ['Preset', 'PRESETS', 'AxisResponse', 'Evaluation', 'NotchChoice', 'Proposal',
            'FEEDBACKS', 'LATENCY_TICKS', 'evaluate', 'propose', 'read_identify',
-           'write_response', 'params_yaml', 'format_proposal', 'plot_open_loop']
+           'write_response', 'params_yaml', 'format_proposal', 'plot_open_loop',
+           'MoveResult', 'move_result', 'format_verification', 'plot_steps']
 
 LATENCY_TICKS = 1          # encoder sample -> command over DDS (as tools/tuning, identify README)
 FEEDBACKS = ('dual', 'motor')
@@ -603,6 +604,104 @@ def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = 
     ax_m.legend(fontsize=8, loc='lower left')
     ax_m.set_title(title or 'open loop (line: model, markers: measured; one tick of latency, '
                    'notch included)', fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ================================================================================================
+# verification: the moves, measured on the controller's own joint_states
+
+@dataclass
+class MoveResult:
+    """One verified move: `settle_ms` from the end of the profile (AT_TARGET) to MOTION_DONE
+    (inf: none), `overshoot` past the target in the direction of the move and `final_error`
+    at rest [load counts], `output_pp` the output's peak-to-peak at rest [V] (ringing); the
+    trace (time from the end of the profile [s], error [counts]) for the plot."""
+    label: str
+    target: float
+    settle_ms: float
+    overshoot: float
+    final_error: float
+    output_pp: float
+    t: np.ndarray
+    error: np.ndarray
+
+
+def move_result(label, target, start, t, position, effort, t_end, t_done, rest_from,
+                counts_per_m) -> MoveResult:
+    """Metrics of a move from the controller's samples (stamp t [s], load position [m],
+    output [V]): t_end the end of the profile, t_done MOTION_DONE (None: not raised), samples
+    from `rest_from` [s] on are 'at rest' (final error: their mean; output_pp: their spread)."""
+    t = np.asarray(t, dtype=float)
+    pos = np.asarray(position, dtype=float)
+    eff = np.asarray(effort, dtype=float)
+    if t.size == 0 or t.size != pos.size or t.size != eff.size:
+        raise ValueError('move_result needs samples of equal length')
+    sign = 1.0 if target >= start else -1.0
+    err = (pos - target) * counts_per_m
+    rest = t >= rest_from
+    if not np.any(rest):
+        raise ValueError('no samples at rest')
+    settle = math.inf if t_done is None or t_end is None else max(t_done - t_end, 0.0) * 1e3
+    over = max(0.0, float(np.max(sign * err)))
+    ref = t_end if t_end is not None else float(t[0])
+    return MoveResult(label, float(target), settle, over, float(np.mean(err[rest])),
+                      float(np.ptp(eff[rest])), t - ref, err)
+
+
+def format_verification(runs: dict, evaluations: dict) -> str:
+    """Before/after table: per move settle time, overshoot, final error, output p-p; then the
+    median settle time and the margins and bandwidth of each set."""
+    lines = ['| gains | move | settle [ms] | overshoot [counts] | final error [counts] | '
+             'output p-p at rest [V] |', '|---|---|---:|---:|---:|---:|']
+    for name, moves in runs.items():
+        for m in moves:
+            s = f'{m.settle_ms:.0f}' if math.isfinite(m.settle_ms) else 'no MOTION_DONE'
+            lines.append(f'| {name} | {m.label} | {s} | {m.overshoot:.2f} | '
+                         f'{m.final_error:+.2f} | {m.output_pp:.3f} |')
+    lines.append('')
+    lines.append('| gains | median settle [ms] | gain margin [dB] | phase margin [°] | '
+                 'crossover [Hz] | bandwidth [Hz] |')
+    lines.append('|---|---:|---:|---:|---:|---:|')
+    for name, moves in runs.items():
+        ev = evaluations[name]
+        med = float(np.median([m.settle_ms for m in moves]))
+        cross = f'{ev.crossover_hz:.1f}' if ev.crossover_hz is not None else '-'
+        lines.append(f'| {name} | {med:.0f} | {ev.gain_margin_db:.1f} | '
+                     f'{ev.phase_margin_deg:.1f} | {cross} | {ev.bandwidth_hz:.1f} |')
+    return '\n'.join(lines)
+
+
+def plot_steps(path, runs: dict, *, title: str = '') -> None:
+    """Slide error [counts] against time from the end of each move's profile, one panel per
+    move, every set of gains (before / after) in it; MOTION_DONE marked."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    names = list(runs)
+    n = max(len(v) for v in runs.values())
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), sharey=True, squeeze=False)
+    for j in range(n):
+        ax = axes[0][j]
+        for i, name in enumerate(names):
+            if j >= len(runs[name]):
+                continue
+            m = runs[name][j]
+            keep = (m.t >= -0.1) & (m.t <= 0.8)
+            ax.plot(m.t[keep] * 1e3, m.error[keep], '-', color=f'C{i}', lw=1.1,
+                    label=f'{name}: settle {m.settle_ms:.0f} ms, final {m.final_error:+.2f}')
+            if math.isfinite(m.settle_ms):
+                ax.axvline(m.settle_ms, color=f'C{i}', ls=':', lw=1)
+        ax.axhspan(-1, 1, color='g', alpha=0.1)
+        ax.set_title(runs[names[0]][j].label, fontsize=9)
+        ax.set_xlabel('time from the end of the profile [ms]')
+        ax.set_ylim(-25, 25)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc='lower right')
+    axes[0][0].set_ylabel('slide error (joint_states) [linear counts]')
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
