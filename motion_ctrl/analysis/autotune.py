@@ -403,6 +403,9 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
         if plain is not None:
             notes.append(f'notch: ki {plain[0][0]:.4g} without, {chosen[0][0]:.4g} '
                          f'with (resonance {axis.model.resonance_hz:.1f} Hz)')
+        elif notch is True:
+            notes.append('notch: asked for (the best one of the candidates at the resonance, '
+                         f'{axis.model.resonance_hz:.1f} Hz)')
         else:
             notes.append('notch: no gains meet the margins without one (resonance '
                          f'{axis.model.resonance_hz:.1f} Hz)')
@@ -506,8 +509,11 @@ def params_yaml(registers: dict, axis: str = 'x', node: str = 'controller',
 def _fmt_margins(ev: Evaluation) -> str:
     meas = ''
     if ev.measured is not None:
-        meas = (f' (measured points: {ev.measured.gain_margin_db:.1f} dB, '
-                f'{ev.measured.phase_margin_deg:.1f}°; model: {ev.model.gain_margin_db:.1f} dB, '
+        pm = (f'{ev.measured.phase_margin_deg:.1f}°' if ev.measured.crossover_hz is not None
+              else 'no gain crossover among them')
+        gm = (f'{ev.measured.gain_margin_db:.1f} dB' if math.isfinite(ev.measured.gain_margin_db)
+              else 'no phase crossover among them')
+        meas = (f' (measured points: {gm}, {pm}; model: {ev.model.gain_margin_db:.1f} dB, '
                 f'{ev.model.phase_margin_deg:.1f}°)')
     cross = f'{ev.crossover_hz:.1f} Hz' if ev.crossover_hz is not None else 'none'
     return (f'gain margin {ev.gain_margin_db:.1f} dB, phase margin {ev.phase_margin_deg:.1f}°'
@@ -597,8 +603,8 @@ def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = 
     ax_m.set_ylim(-40, 60)
     ax_m.set_ylabel('|L| [dB]')
     ax_p.set_ylabel('phase of L [°]')
-    ax_p.set_ylim(-540, 0)
-    ax_p.set_yticks([-540, -450, -360, -270, -180, -90, 0])
+    ax_p.set_ylim(-720, 0)
+    ax_p.set_yticks(list(range(-720, 1, 90)))
     ax_p.set_xlabel('frequency [Hz]')
     ax_m.set_xlim(1.0, axis.nyquist)
     ax_m.legend(fontsize=8, loc='lower left')

@@ -14,7 +14,8 @@ of motion_ctrl/analysis/autotune.py; Kollmorgen WorkBench's Performance Servo Tu
    with the current registers, the proposal loaded (load_parameter_file_atomically, as
    `ros2 param load`), the same moves again; a before/after table of settle time (end of the
    profile to MOTION_DONE), overshoot, final error and the output's peak-to-peak at rest, from
-   the controller's own joint_states and status (never plant_states), and steps.png.
+   the controller's own joint_states and status (never plant_states), steps.png and
+   verification.yaml (the same numbers).
 
 With --from and neither --apply nor --spawn it needs no ROS: the registers it compares with are
 the register table's defaults (or `--current FILE`, a `ros2 param load` YAML).
@@ -229,6 +230,19 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
                   f'autotune --preset {prop.preset.name} (controller joint_states)')
     with open(out / 'report.md', 'a') as f:
         f.write('\n' + table + '\n')
+    import yaml
+    evs = {'before': before, 'after': prop.evaluation}
+    summary = {name: dict(
+        gain_margin_db=float(evs[name].gain_margin_db),
+        phase_margin_deg=float(evs[name].phase_margin_deg),
+        crossover_hz=float(evs[name].crossover_hz or 0.0),
+        bandwidth_hz=float(evs[name].bandwidth_hz),
+        moves=[dict(move=m.label, target=m.target, settle_ms=float(m.settle_ms),
+                    overshoot_counts=float(m.overshoot), final_error_counts=float(m.final_error),
+                    output_pp_v=float(m.output_pp)) for m in moves])
+        for name, moves in runs.items()}
+    (out / 'verification.yaml').write_text(yaml.safe_dump(summary, sort_keys=False,
+                                                          allow_unicode=True))
     log(f'autotune: wrote {png}')
     result['runs'] = runs
     return result
