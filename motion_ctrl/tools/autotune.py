@@ -32,7 +32,8 @@ import numpy as np
 from motion_ctrl.analysis import autotune as at
 from motion_ctrl.core.registers import INCH, axis_defaults
 
-MOVES = (('1 in forward', INCH), ('+2 in', 2 * INCH), ('back to +1 in (reversal)', INCH))
+MOVES = (('0 -> 1 in (after the return to 0)', INCH), ('+2 in', 2 * INCH),
+         ('back to +1 in (reversal)', INCH))
 READ = ('feedback', 'load_counts_per_m') + at.GAIN_REGISTERS
 REST_SAMPLES = 200          # joint_states samples after MOTION_DONE: the final error, the output
 
