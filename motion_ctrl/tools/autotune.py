@@ -210,16 +210,19 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     assert rec is not None
     cpm = float(current['load_counts_per_m'])
     saved = {k: current[k] for k in at.GAIN_REGISTERS}
+    loaded = False
     try:
         log('autotune: verification, current registers')
         runs = {'before': run_moves(rec, axis, cpm, args.move_timeout, log)}
         axis.move(0.0, args.move_timeout)
         axis.load_file(yaml_path)
+        loaded = True
         log(f'autotune: loaded {yaml_path}; verification, proposed registers')
         runs['after'] = run_moves(rec, axis, cpm, args.move_timeout, log)
     except (AutotuneError, CalibrationError) as e:
-        log(f'autotune: {e}; putting the registers back')
-        axis.set(saved)
+        if loaded:
+            log(f'autotune: {e}; putting the registers back')
+            axis.set(saved)
         raise
     if args.restore:
         axis.set(saved)
