@@ -26,7 +26,7 @@ bisection to the largest value for which the margins meet the preset's targets a
 crossover stays below the preset's share of the first anti-resonance (a two-mass loop should
 not cross over above about half of it). Of those, the largest ki wins (the stiffest at low
 frequency: what drives a backlash gap or a friction offset out and ends a move; on the
-simulated slide it settled the demo's moves 2.5 times faster than choosing the highest
+simulated slide it settled the demo's moves about twice as fast as choosing the highest
 crossover or bandwidth did), then the higher bandwidth. A notch is kept only where it buys
 something (the resonance limits the loop): more than 10 % more ki than the best without.
 
