@@ -4,7 +4,7 @@ the stiff preset and verifying it with the demo's three moves before and after, 
 controller's own joint_states and status. What it must show: the proposal meets 8 dB / 45° on
 the measured open loop, and after it every move settles faster than with the shipped gains,
 within 1 count and with at most 2 counts of overshoot, no ringing at rest (output p-p < 0.2 V).
-The issue's 150 ms median is measured and printed, not asserted (README: 253-261 ms in lockstep)."""
+The issue's 150 ms median is measured and printed, not asserted (README: 253-313 ms in lockstep)."""
 import subprocess
 import sys
 
