@@ -547,6 +547,11 @@ def format_proposal(p: Proposal, before: Evaluation | None = None) -> str:
     return '\n'.join(lines)
 
 
+def _wrapped(deg):
+    """Phase in [-360°, 0): −180° (the stability point) in the middle of the plot."""
+    return np.mod(deg, 360.0) - 360.0
+
+
 def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = '') -> None:
     """Bode plot of the open loop L of each (label, Evaluation): the model as a line, the
     measured points as markers, gain and phase margins marked (model) at their crossovers."""
@@ -562,26 +567,23 @@ def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = 
         c = f'C{i}'
         g = _check_gains(ev.registers)
         L = _loop(f, g, gm_, gl_, ev.feedback, T)
-        ph = np.degrees(np.unwrap(np.angle(L)))
-        ph -= 360.0 * np.ceil(ph[0] / 360.0)          # start in (-360, 0]
+        ph = _wrapped(np.degrees(np.angle(L)))
         ax_m.semilogx(f, 20 * np.log10(np.abs(L)), '-', color=c, lw=1.2,
                       label=f'{label}: GM {ev.gain_margin_db:.1f} dB, PM '
                             f'{ev.phase_margin_deg:.1f}°, crossover '
                             f'{ev.crossover_hz or float("nan"):.1f} Hz')
-        ax_p.semilogx(f, ph, '-', color=c, lw=1.2)
+        gap = np.abs(np.diff(ph)) > 180.0             # a wrap, not a line across the plot
+        ax_p.semilogx(f, np.where(np.append(gap, False), np.nan, ph), '-', color=c, lw=1.2)
         if meas is not None:
             fm, mm, ml = meas
             Lm = _loop(fm, g, mm, ml, ev.feedback, T)
-            phm = np.degrees(np.angle(Lm))
-            # put each measured phase on the model's branch
-            ref = np.interp(fm, f, ph)
-            phm = phm + 360.0 * np.round((ref - phm) / 360.0)
+            phm = _wrapped(np.degrees(np.angle(Lm)))
             ax_m.semilogx(fm, 20 * np.log10(np.abs(Lm)), 'o', ms=3.5, mfc='none', mec=c)
             ax_p.semilogx(fm, phm, 'o', ms=3.5, mfc='none', mec=c)
         m = ev.model
         if m.crossover_hz is not None:
             fc = m.crossover_hz
-            pc = float(np.interp(math.log(fc), np.log(f), ph))
+            pc = m.phase_margin_deg - 180.0
             ax_p.annotate('', xy=(fc, pc), xytext=(fc, pc - m.phase_margin_deg),
                           arrowprops=dict(arrowstyle='<->', color=c, lw=1.5))
             ax_p.text(fc * 1.04, pc - m.phase_margin_deg / 2, f'PM {m.phase_margin_deg:.1f}°',
@@ -602,8 +604,8 @@ def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = 
     ax_m.set_ylim(-40, 60)
     ax_m.set_ylabel('|L| [dB]')
     ax_p.set_ylabel('phase of L [°]')
-    ax_p.set_ylim(-720, 0)
-    ax_p.set_yticks(list(range(-720, 1, 90)))
+    ax_p.set_ylim(-360, 0)
+    ax_p.set_yticks(list(range(-360, 1, 45)))
     ax_p.set_xlabel('frequency [Hz]')
     ax_m.set_xlim(1.0, axis.nyquist)
     ax_m.legend(fontsize=8, loc='lower left')
