@@ -199,3 +199,36 @@ def test_stiff_preset_settles_the_demo_moves_faster_than_the_defaults():
     for (s0, _, _), (s1, over, err) in zip(before, after):
         assert s1 < s0, (before, after)
         assert abs(err) <= 1.0 and over <= 2.0, after
+
+
+def test_the_tool_offline(tmp_path, capsys):
+    """`autotune --from DIR` needs no ROS: the proposal against the register table's defaults
+    or a --current file, YAML and the Bode plot written; bad input is a clear error, exit 1."""
+    from motion_ctrl.tools import autotune as tool
+    ax, _ = axis()
+    m = ax.model
+    src = tmp_path / 'identify'
+    src.mkdir()
+    (src / 'identify.yaml').write_text(yaml.safe_dump({k: float(v) for k, v in dict(
+        accel_per_volt=m.accel_per_volt, viscous_pole=m.viscous_pole,
+        resonance_hz=m.resonance_hz, resonance_damping=m.resonance_damping,
+        antiresonance_hz=m.antiresonance_hz, antiresonance_damping=m.antiresonance_damping,
+        load_zero=m.load_zero, delay_ticks=0, sample_period=T, coulomb=0.24,
+        viscous=ax.viscous).items()}))
+    at.write_response(src / at.RESPONSE_FILE, ax.motor, ax.load)
+    out = tmp_path / 'out'
+    assert tool.main(['--from', str(src), '-o', str(out)]) == 0
+    regs = yaml.safe_load((out / 'autotune.yaml').read_text())['controller']['ros__parameters']
+    assert regs['x.kaff'] == pytest.approx(1.0 / m.accel_per_volt, rel=1e-3)
+    assert (out / 'open_loop.png').stat().st_size > 10_000
+    text = capsys.readouterr().out
+    assert 'before:   gain margin' in text and "meets the preset's 8 dB / 45°" in text
+    cur = tmp_path / 'current.yaml'
+    cur.write_text(at.params_yaml(dict(kp=8000.0, ki=50000.0, kd=100.0)))
+    assert tool.main(['--from', str(src), '--current', str(cur), '-o', str(out)]) == 0
+    assert '| kp | 8000 |' in capsys.readouterr().out
+    assert tool.main(['--from', str(tmp_path / 'nothing'), '-o', str(out)]) == 1
+    assert 'identify.yaml: not found' in capsys.readouterr().err
+    assert tool.main(['--from', str(src), '--current', str(cur), '--axis', 'y',
+                      '-o', str(out)]) == 1
+    assert 'no registers of axis y' in capsys.readouterr().err

@@ -134,15 +134,20 @@ def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, log=
     return out
 
 
-def read_current(path) -> dict:
-    """Registers of a `ros2 param load` YAML file, for one axis: {register: value}."""
+def read_current(path, axis: str) -> dict:
+    """The axis's registers from a `ros2 param load` YAML file (`<axis>.<register>` keys) over
+    the register table's defaults: {register: value}."""
     import yaml
     try:
         doc = yaml.safe_load(pathlib.Path(path).read_text())
         params = next(iter(doc.values()))['ros__parameters']
+        mine = {k.split('.', 1)[1]: v for k, v in params.items()
+                if k.startswith(f'{axis}.')}
     except (OSError, yaml.YAMLError, AttributeError, KeyError, StopIteration, TypeError) as e:
         raise AutotuneError(f'--current {path}: not a ros2 param load file ({e})') from None
-    return params
+    if not mine:
+        raise AutotuneError(f'--current {path}: no registers of axis {axis} ({axis}.kp, ...)')
+    return axis_defaults() | mine
 
 
 def propose_and_write(response: at.AxisResponse, current: dict, args, out: pathlib.Path,
@@ -318,7 +323,7 @@ def main(argv=None) -> int:
             out = pathlib.Path(args.out or datetime.datetime.now().strftime(
                 'out/autotune-%Y%m%d-%H%M%S'))
             out.mkdir(parents=True, exist_ok=True)
-            current = read_current(args.current) if args.current else axis_defaults()
+            current = read_current(args.current, args.axis) if args.current else axis_defaults()
             prop, _, _ = propose_and_write(_read(args.source), current, args, out)
             return 0 if prop.ok else 1
         if args.current:
