@@ -227,6 +227,9 @@ def test_the_tool_offline(tmp_path, capsys):
     cur.write_text(at.params_yaml(dict(kp=8000.0, ki=50000.0, kd=100.0)))
     assert tool.main(['--from', str(src), '--current', str(cur), '-o', str(out)]) == 0
     assert '| kp | 8000 |' in capsys.readouterr().out
+    assert tool.main(['--from', str(src), '--feedback', 'motor', '-o', str(out)]) == 0
+    regs = yaml.safe_load((out / 'autotune.yaml').read_text())['controller']['ros__parameters']
+    assert regs['x.feedback'] == 'motor'
     assert tool.main(['--from', str(tmp_path / 'nothing'), '-o', str(out)]) == 1
     assert 'identify.yaml: not found' in capsys.readouterr().err
     assert tool.main(['--from', str(src), '--current', str(cur), '--axis', 'y',

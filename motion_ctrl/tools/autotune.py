@@ -169,7 +169,14 @@ def propose_and_write(response: at.AxisResponse, current: dict, args, out: pathl
               f'{prop.evaluation.bandwidth_hz:.1f} Hz\n'
               f'load with: ros2 param load /controller <this file>')
     yaml_path = out / 'autotune.yaml'
-    yaml_path.write_text(at.params_yaml(prop.registers, args.axis, comment=header))
+    text_yaml = at.params_yaml(prop.registers, args.axis, comment=header)
+    if args.feedback and args.feedback != current.get('feedback'):
+        # tuned for another loop than the axis runs: the file switches it (with the gains, at
+        # once: load_parameter_file_atomically)
+        text_yaml += f'    {args.axis}.feedback: {args.feedback}\n'
+        log(f'autotune: the file sets {args.axis}.feedback: {args.feedback} (now '
+            f'{current.get("feedback")})')
+    yaml_path.write_text(text_yaml)
     png = out / 'open_loop.png'
     at.plot_open_loop(png, response, [('current', before), (f'{prop.preset.name} (proposed)',
                                                             prop.evaluation)],
