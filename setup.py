@@ -37,6 +37,7 @@ EXECUTABLES = {
     'draw': 'motion_ctrl.tools.draw:main',
     'calibrate': 'motion_ctrl.tools.calibrate:main',
     'identify': 'motion_ctrl.tools.identify:main',
+    'autotune': 'motion_ctrl.tools.autotune:main',
 }
 
 SHIM_DIR = os.path.join('build', 'shims')

@@ -219,7 +219,9 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
         resonance_hz=fit.resonance_hz, resonance_damping=fit.resonance_damping,
         antiresonance_hz=fit.antiresonance_hz,
         antiresonance_damping=fit.antiresonance_damping,
-        accel_per_volt=fit.accel_per_volt, inertia=fit.inertia, motor_inertia=fit.motor_inertia,
+        accel_per_volt=fit.accel_per_volt, viscous_pole=fit.model.viscous_pole,
+        load_zero=fit.model.load_zero, sample_period=1.0 / rate,
+        inertia=fit.inertia, motor_inertia=fit.motor_inertia,
         load_inertia=fit.load_inertia, inertia_ratio=fit.inertia_ratio,
         stiffness=fit.stiffness, delay_ticks=fit.delay_ticks, points=fit.points,
         frequencies=int(np.count_nonzero(inband)), band=[float(lo), float(hi)],
@@ -244,11 +246,14 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     import yaml
     (out / 'identify.yaml').write_text(yaml.safe_dump(result, sort_keys=False))
     (out / 'report.md').write_text(report + '\n')
+    from motion_ctrl.analysis.autotune import RESPONSE_FILE, write_response
+    write_response(out / RESPONSE_FILE, motor, load)      # the measured points, for autotune
     png = out / 'bode.png'
     idf.plot_bode(png, motor, load, fit, min_coherence=MIN_COHERENCE,
                   title=f'axis {args.axis}: volts -> motor and load position, loop closed '
                         f'(stepped sine on a {args.velocity * 1e3:g} mm/s base motion)')
-    log(f'identify: wrote {out / "identify.yaml"}, {out / "report.md"} and {png} '
+    log(f'identify: wrote {out / "identify.yaml"}, {out / RESPONSE_FILE}, {out / "report.md"} '
+        f'and {png} '
         f'({seconds:.1f} s)')
     return result
 

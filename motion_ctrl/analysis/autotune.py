@@ -1,0 +1,714 @@
+"""Proposing servo gains from a measured response: the maths of the `autotune` tool.
+
+What a drive's tuner does after its Bode measurement (Kollmorgen WorkBench's Performance Servo
+Tuner, Galil's and PMAC's auto-tuning): from the axis's response volts → motor and load position
+(the two-mass model `identify` fits, and the measured points themselves), registers of this
+package's PMAC PID are proposed for a preset, with the stability margins they give on the
+*measured* open loop:
+
+    L = z^−1 · F(z) · [ (kp + ki·T·z/(z − 1)) · G_pos + kd·(1 − z⁻¹)/T · G_vel ]
+
+(identify.pid_open_loop: one tick of latency from the encoder sample to the command; F the
+Ixx36–39 notch; `feedback` dual: G_pos the load, G_vel the motor, Galil DV; motor: both the
+motor). The margins are computed twice, by identify.margins — on the fitted model over a dense
+grid (it resolves the resonance and reaches to Nyquist) and on the measured points whose
+coherence reaches 0.9 on motor and load — and the lower of the two is what the proposal promises.
+
+The gains come from one shape and one scale. With J the axis's total inertia [V·s²/m] and ωc
+the design crossover, as for a rigid body J s²:
+
+    kd = J·ωc,   kp = kd·ωc / a,   ki = kp·ωc / (a·b)
+
+(the PID's zeros at about ωc/a and ωc/(a·b): a = 3, b = 4 puts 45–60° of phase at the
+crossover). For each shape (a, b) of a small grid and each notch candidate (none, or the
+resonance cancelled with PMAC's filter, core.notch.design with prewarp), ωc is raised by
+bisection to the largest value for which the margins meet the preset's targets and the
+crossover stays below the preset's share of the first anti-resonance (a two-mass loop should
+not cross over above about half of it). Of those, the largest ki wins (the stiffest at low
+frequency: what drives a backlash gap or a friction offset out and ends a move; on the
+simulated slide it settled the demo's moves about twice as fast as choosing the highest
+crossover or bandwidth did), then the higher bandwidth. A notch is kept only where it buys
+something (the resonance limits the loop): more than 10 % more ki than the best without.
+
+Feedforward (on the command, outside the loop): kaff = J (the acceleration it cancels),
+kvff = kd + viscous (PMAC form: kd acts on the actual velocity, kvff = kd cancels it on a move,
+plus the viscous friction), friction_ff = the Coulomb friction (Ixx68), from identify's jogs.
+
+No rclpy: file input (identify's output folder) and plots are here, ROS is in tools/autotune.py.
+"""
+from __future__ import annotations
+
+import math
+import pathlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from motion_ctrl.analysis import identify as idf
+from motion_ctrl.core import notch as nt
+from motion_ctrl.core.registers import yaml_float
+
+__all__ = ['Preset', 'PRESETS', 'AxisResponse', 'Evaluation', 'NotchChoice', 'Proposal',
+           'FEEDBACKS', 'LATENCY_TICKS', 'evaluate', 'propose', 'read_identify',
+           'write_response', 'params_yaml', 'format_proposal', 'plot_open_loop',
+           'MoveResult', 'move_result', 'format_verification', 'plot_steps']
+
+LATENCY_TICKS = 1          # encoder sample -> command over DDS (as tools/tuning, identify README)
+FEEDBACKS = ('dual', 'motor')
+NOTCH_KEEP_GAIN = 1.10     # a notch must raise ki by 10 % to be worth its phase lag
+SHAPES = tuple((a, b) for a in (1.5, 2.0, 3.0, 4.0, 6.0) for b in (4.0, 8.0, 16.0))
+#: the search asks this much more than the preset (grids differ; the gains are rounded)
+SEARCH_PAD_DB, SEARCH_PAD_DEG = 0.2, 0.5
+GAIN_REGISTERS = ('kp', 'ki', 'kd', 'kvff', 'kaff', 'friction_ff',
+                  'notch_n1', 'notch_n2', 'notch_d1', 'notch_d2')
+MIN_COHERENCE = 0.9
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Targets of a tuning: gain and phase margin, and the highest crossover as a share of the
+    first anti-resonance."""
+    name: str
+    gain_margin_db: float
+    phase_margin_deg: float
+    bandwidth_fraction: float
+    note: str
+
+
+PRESETS = {
+    'stiff': Preset('stiff', 8.0, 45.0, 0.5, 'Kollmorgen default 8 dB / 45°, crossover up to '
+                    'half the first anti-resonance'),
+    'medium': Preset('medium', 8.0, 45.0, 0.3, '8 dB / 45°, crossover up to 0.3 of the first '
+                     'anti-resonance'),
+    'soft': Preset('soft', 10.0, 55.0, 0.2, 'conservative 10 dB / 55°, crossover up to 0.2 of '
+                   'the first anti-resonance'),
+}
+
+
+def _positive(name, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f'{name} must be a number, got {v!r}')
+    v = float(v)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f'{name} must be a finite number > 0, got {v!r}')
+    return v
+
+
+@dataclass
+class AxisResponse:
+    """An axis as identify measured it: the fitted model (sampled at `sample_period`, with
+    `delay_ticks` as fitted), the measured responses volts → motor and load position (optional:
+    without them the margins are the model's alone), and the friction of the jogs (Coulomb [V],
+    viscous [V per m/s])."""
+    model: idf.TwoMassModel
+    sample_period: float
+    delay_ticks: int = 0
+    coulomb: float = 0.0
+    viscous: float = 0.0
+    motor: idf.FrequencyResponse | None = None
+    load: idf.FrequencyResponse | None = None
+
+    def __post_init__(self):
+        _positive('sample_period', self.sample_period)
+        m = self.model
+        for name in ('accel_per_volt', 'resonance_hz', 'antiresonance_hz'):
+            _positive(name, getattr(m, name))
+        nyq = 0.5 / self.sample_period
+        if not m.antiresonance_hz < m.resonance_hz < nyq:
+            raise ValueError(f'the model needs anti-resonance < resonance < Nyquist ({nyq:g} Hz), '
+                             f'got {m.antiresonance_hz:g} and {m.resonance_hz:g} Hz')
+        if (self.motor is None) != (self.load is None):
+            raise ValueError('give both measured responses (motor and load) or neither')
+        if self.motor is not None and self.load is not None and \
+                not np.array_equal(self.motor.freq, self.load.freq):
+            raise ValueError('the measured motor and load responses must share their frequencies')
+        if not (math.isfinite(self.coulomb) and self.coulomb >= 0.0):
+            raise ValueError(f'coulomb must be a finite number >= 0 V, got {self.coulomb!r}')
+        if not math.isfinite(self.viscous):
+            raise ValueError(f'viscous must be finite, got {self.viscous!r}')
+
+    @property
+    def inertia(self) -> float:
+        """Total inertia [V·s²/m] (= kaff)."""
+        return 1.0 / self.model.accel_per_volt
+
+    @property
+    def nyquist(self) -> float:
+        return 0.5 / self.sample_period
+
+    def grid(self, n=1200, band_points=201) -> np.ndarray:
+        """Frequencies [Hz] for the model's margins: log-spaced to just below Nyquist, with the
+        resonance and anti-resonance resolved (points spaced by a tenth of their width)."""
+        m = self.model
+        f = [np.geomspace(0.2, 0.999 * self.nyquist, n)]
+        for fc, z in ((m.resonance_hz, m.resonance_damping),
+                      (m.antiresonance_hz, m.antiresonance_damping)):
+            w = max(z, 0.002) * fc
+            f.append(np.linspace(max(fc - 10 * w, 0.2), min(fc + 10 * w, 0.999 * self.nyquist),
+                                 band_points))
+        return np.unique(np.concatenate(f))
+
+    def plant(self, freq) -> tuple[np.ndarray, np.ndarray]:
+        """Model (motor, load) responses [m/V] at `freq`, sampled and delayed as fitted."""
+        kw = dict(sample_period=self.sample_period, delay_ticks=self.delay_ticks)
+        return (self.model.response(freq, output='motor', **kw),
+                self.model.response(freq, output='load', **kw))
+
+    def measured(self, min_coherence=MIN_COHERENCE):
+        """(freq, motor, load) of the measured points coherent on both, or None."""
+        if self.motor is None or self.load is None:
+            return None
+        keep = (self.motor.coherence >= min_coherence) & (self.load.coherence >= min_coherence) \
+            & np.isfinite(self.motor.response) & np.isfinite(self.load.response)
+        if np.count_nonzero(keep) < 2:
+            return None
+        return self.motor.freq[keep], self.motor.response[keep], self.load.response[keep]
+
+
+def _loop(freq, gains, motor, load, feedback, period):
+    pos, vel = (load, motor) if feedback == 'dual' else (motor, motor)
+    return idf.pid_open_loop(freq, gains, period, pos, vel, latency_ticks=LATENCY_TICKS)
+
+
+def _closed_bandwidth(freq, gains, motor, load, feedback, period) -> float:
+    """-3 dB bandwidth [Hz] of the position loop, command -> position-loop encoder, without
+    feedforward: z^-1·P·G_pos / (1 + L)."""
+    pos = load if feedback == 'dual' else motor
+    L = _loop(freq, gains, motor, load, feedback, period)
+    notch = tuple(float(gains.get(k, 0.0)) for k in GAIN_REGISTERS[6:])
+    P, _ = idf.pid_response(freq, kp=gains['kp'], ki=gains.get('ki', 0.0),
+                            kd=gains.get('kd', 0.0), servo_period=period, notch=notch)
+    z = np.exp(2j * math.pi * np.asarray(freq) * period)
+    T = np.abs(z ** -LATENCY_TICKS * P * pos / (1.0 + L))
+    below = np.flatnonzero(T < 1.0 / math.sqrt(2.0))
+    if below.size == 0:
+        return float(freq[-1])
+    i = int(below[0])
+    if i == 0:
+        return float(freq[0])
+    # interpolate on log frequency, linear in dB
+    a, b = 20 * np.log10(T[i - 1]), 20 * np.log10(T[i])
+    t = (-3.0103 - a) / (b - a) if b != a else 0.0
+    return float(math.exp(math.log(freq[i - 1]) + t * (math.log(freq[i]) - math.log(freq[i - 1]))))
+
+
+@dataclass
+class Evaluation:
+    """Registers on an axis: margins on the model (dense grid) and on the measured points (None
+    without them); `gain_margin_db`, `phase_margin_deg`: the lower of the two; `crossover_hz`:
+    the first gain crossover (model); `bandwidth_hz`: -3 dB of the position loop (model)."""
+    registers: dict
+    feedback: str
+    model: idf.Margins
+    measured: idf.Margins | None
+    gain_margin_db: float
+    phase_margin_deg: float
+    crossover_hz: float | None
+    bandwidth_hz: float
+
+    def problems(self, preset: Preset) -> list:
+        out = []
+        if self.crossover_hz is None:
+            out.append('no gain crossover')
+        if self.phase_margin_deg < preset.phase_margin_deg:
+            out.append(f'phase margin {self.phase_margin_deg:.1f}° < {preset.phase_margin_deg:g}°')
+        if self.gain_margin_db < preset.gain_margin_db:
+            out.append(f'gain margin {self.gain_margin_db:.1f} dB < {preset.gain_margin_db:g} dB')
+        return out
+
+    def ok(self, preset: Preset) -> bool:
+        return not self.problems(preset)
+
+
+def _check_feedback(feedback) -> str:
+    if feedback == 'sampled':
+        return 'motor'          # Galil's sampled dual loop: a motor loop between corrections
+    if feedback not in FEEDBACKS:
+        raise ValueError(f"feedback must be one of {', '.join(FEEDBACKS)} (or sampled, tuned as "
+                         f"motor), got {feedback!r}: a loop closed on the load alone is not "
+                         'collocated and not tuned here')
+    return feedback
+
+
+def _check_gains(gains) -> dict:
+    out = {}
+    for k in ('kp', 'ki', 'kd'):
+        v = gains.get(k, 0.0) if k != 'kp' else gains.get('kp')
+        if v is None:
+            raise ValueError('registers need kp')
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(v) or v < 0:
+            raise ValueError(f'{k} must be a finite number >= 0, got {v!r}')
+        out[k] = float(v)
+    n = tuple(float(gains.get(k, 0.0)) for k in GAIN_REGISTERS[6:])
+    nt.Biquad.validate(*n)
+    out.update(zip(GAIN_REGISTERS[6:], n))
+    return out
+
+
+def evaluate(axis: AxisResponse, registers: dict, feedback: str = 'dual', *,
+             freq=None) -> Evaluation:
+    """Margins and bandwidth of `registers` (kp, ki, kd, notch_*) on the axis."""
+    feedback = _check_feedback(feedback)
+    g = _check_gains(registers)
+    T = axis.sample_period
+    f = axis.grid() if freq is None else np.asarray(freq, dtype=float)
+    gm_, gl_ = axis.plant(f)
+    m_model = idf.margins(f, _loop(f, g, gm_, gl_, feedback, T))
+    m_meas = None
+    meas = axis.measured()
+    if meas is not None:
+        fm, mm, ml = meas
+        m_meas = idf.margins(fm, _loop(fm, g, mm, ml, feedback, T))
+    gms = [m_model.gain_margin_db] + ([m_meas.gain_margin_db] if m_meas else [])
+    pms = [m_model.phase_margin_deg] + ([m_meas.phase_margin_deg] if m_meas else [])
+    cross = min(m_model.gain_crossovers_hz) if m_model.gain_crossovers_hz else None
+    return Evaluation(dict(registers), feedback, m_model, m_meas, float(min(gms)),
+                      float(min(pms)), cross, _closed_bandwidth(f, g, gm_, gl_, feedback, T))
+
+
+@dataclass(frozen=True)
+class NotchChoice:
+    """A notch as designed (core.notch.design, prewarp): zeros and poles [Hz] with damping."""
+    f_zero: float
+    zeta_zero: float
+    f_pole: float
+    zeta_pole: float
+
+    def registers(self, period) -> dict:
+        c = nt.design(self.f_zero, self.zeta_zero, self.f_pole, self.zeta_pole, period,
+                      prewarp=True)
+        nt.Biquad.validate(*c)
+        return dict(zip(GAIN_REGISTERS[6:], (float(x) for x in c)))
+
+
+def _notch_candidates(axis: AxisResponse) -> list:
+    m = axis.model
+    fr = m.resonance_hz
+    zr = max(m.resonance_damping, 0.01)
+    out = []
+    for zz in (zr, 0.1):
+        out.append(NotchChoice(fr, zz, fr, 0.5))
+    ok = []
+    for c in dict.fromkeys(out):
+        try:
+            c.registers(axis.sample_period)
+        except ValueError:
+            continue
+        ok.append(c)
+    return ok
+
+
+def _shape_gains(J, wc, a, b) -> dict:
+    kd = J * wc
+    kp = kd * wc / a
+    return dict(kp=kp, ki=kp * wc / (a * b), kd=kd)
+
+
+@dataclass
+class Proposal:
+    """The registers proposed for a preset, and what they give on the measured axis."""
+    preset: Preset
+    feedback: str
+    registers: dict                      # kp, ki, kd, kvff, kaff, friction_ff, notch_n1..d2
+    notch: NotchChoice | None
+    evaluation: Evaluation
+    cap_hz: float                        # the crossover limit of the preset
+    limit: str                           # what bounded the crossover
+    shape: tuple
+    notes: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.evaluation.ok(self.preset)
+
+
+def _round(v, digits=4) -> float:
+    if v == 0.0:
+        return 0.0
+    return float(f'{v:.{digits}g}')
+
+
+def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 'dual', *,
+            notch: bool | None = None) -> Proposal:
+    """Registers for `preset` (stiff, medium, soft) on `axis` with `feedback` dual or motor.
+
+    notch: None = only where the resonance limits the loop (the default), False = never, True =
+    always. Raises ValueError on bad input, and when no gains meet the preset's margins (the
+    measured loop is too poor: more coherent points, a lower latency, or a softer preset)."""
+    if isinstance(preset, str):
+        if preset not in PRESETS:
+            raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+        preset = PRESETS[preset]
+    feedback = _check_feedback(feedback)
+    if notch not in (None, True, False):
+        raise ValueError(f'notch must be None, True or False, got {notch!r}')
+    T = axis.sample_period
+    J = axis.inertia
+    cap = preset.bandwidth_fraction * axis.model.antiresonance_hz
+    f = axis.grid(300, 81)             # the search's grid; the result is evaluated on the full one
+    gm_, gl_ = axis.plant(f)
+    meas = axis.measured()
+    gm_target = preset.gain_margin_db + SEARCH_PAD_DB
+    pm_target = preset.phase_margin_deg + SEARCH_PAD_DEG
+    top = 2 * math.pi * 0.6 * axis.model.antiresonance_hz     # the same search for every preset
+
+    def feasible(regs) -> tuple[bool, float | None]:
+        mm = idf.margins(f, _loop(f, regs, gm_, gl_, feedback, T))
+        if not mm.gain_crossovers_hz:
+            return False, None
+        cross = min(mm.gain_crossovers_hz)
+        if mm.gain_margin_db < gm_target or mm.phase_margin_deg < pm_target or cross > cap:
+            return False, cross
+        if meas is not None:
+            fm, m_, l_ = meas
+            me = idf.margins(fm, _loop(fm, regs, m_, l_, feedback, T))
+            if me.gain_margin_db < gm_target or me.phase_margin_deg < pm_target:
+                return False, cross
+        return True, cross
+
+    def best_for(nregs) -> tuple | None:
+        best = None
+        for a, b in SHAPES:
+            lo, hi = math.log(2 * math.pi * 0.5), math.log(top)
+            regs = lambda wc: _shape_gains(J, wc, a, b) | nregs   # noqa: E731
+            if not feasible(regs(math.exp(lo)))[0]:
+                continue
+            for _ in range(11):
+                mid = 0.5 * (lo + hi)
+                if feasible(regs(math.exp(mid)))[0]:
+                    lo = mid
+                else:
+                    hi = mid
+            r = regs(math.exp(lo))
+            bw = _closed_bandwidth(f, r, gm_, gl_, feedback, T)
+            key = (r['ki'], round(bw, 1))
+            if best is None or key > best[0]:
+                best = (key, r, (a, b))
+        return best
+
+    plain = best_for({}) if notch is not True else None
+    with_notch = None
+    if notch is not False:
+        for c in _notch_candidates(axis):
+            got = best_for(c.registers(T))
+            if got is not None and (with_notch is None or got[0] > with_notch[0][0]):
+                with_notch = (got, c)
+    chosen, choice = plain, None
+    notes = []
+    if with_notch is not None and (notch is True or plain is None or
+                                   with_notch[0][0][0] > NOTCH_KEEP_GAIN * plain[0][0]):
+        chosen, choice = with_notch
+        if plain is not None:
+            notes.append(f'notch: ki {plain[0][0]:.4g} without, {chosen[0][0]:.4g} '
+                         f'with (resonance {axis.model.resonance_hz:.1f} Hz)')
+        elif notch is True:
+            notes.append('notch: asked for (the best one of the candidates at the resonance, '
+                         f'{axis.model.resonance_hz:.1f} Hz)')
+        else:
+            notes.append('notch: no gains meet the margins without one (resonance '
+                         f'{axis.model.resonance_hz:.1f} Hz)')
+    elif notch is None and plain is not None:
+        extra = '' if with_notch is None else \
+            f' (ki {with_notch[0][0][0]:.4g} with one, {plain[0][0]:.4g} without)'
+        notes.append('no notch: the resonance does not limit the loop; a notch would not raise '
+                     f'ki by {100 * (NOTCH_KEEP_GAIN - 1):.0f} %{extra}')
+    if chosen is None:
+        raise ValueError(f'no gains meet {preset.name} ({preset.gain_margin_db:g} dB, '
+                         f'{preset.phase_margin_deg:g}°) on this axis with feedback {feedback}'
+                         + ('' if notch is not False else ' without a notch'))
+    _, regs, shape = chosen
+    regs = {k: _round(v) for k, v in regs.items() if k in ('kp', 'ki', 'kd')} | \
+        {k: float(v) for k, v in regs.items() if k.startswith('notch_')}
+    regs |= {k: 0.0 for k in GAIN_REGISTERS[6:] if k not in regs}
+    ev = evaluate(axis, regs, feedback)
+    cross = ev.crossover_hz or 0.0
+    limit = ('the preset\'s crossover limit' if cross >= 0.97 * cap else
+             'the margins' + (' (the resonance)' if choice is None and plain is not None
+                              and ev.model.phase_crossover_hz is not None and
+                              ev.model.phase_crossover_hz > 0.8 * axis.model.antiresonance_hz
+                              else ''))
+    kd = regs['kd']
+    regs = dict(kp=regs['kp'], ki=regs['ki'], kd=kd,
+                kvff=_round(kd + max(axis.viscous, 0.0)), kaff=_round(J),
+                friction_ff=_round(axis.coulomb)) | {k: regs[k] for k in GAIN_REGISTERS[6:]}
+    ev.registers = dict(regs)
+    return Proposal(preset, feedback, regs, choice, ev, cap, limit, shape, notes)
+
+
+# ================================================================================================
+# files: identify's output in, ros2 param load YAML out
+
+RESPONSE_FILE = 'response.csv'
+RESPONSE_HEADER = 'freq_hz,motor_re,motor_im,motor_coherence,load_re,load_im,load_coherence'
+
+
+def write_response(path, motor: idf.FrequencyResponse, load: idf.FrequencyResponse) -> None:
+    """The measured responses as CSV (identify writes it beside identify.yaml)."""
+    if not np.array_equal(motor.freq, load.freq):
+        raise ValueError('motor and load responses must share their frequencies')
+    a = np.column_stack([motor.freq, motor.response.real, motor.response.imag, motor.coherence,
+                         load.response.real, load.response.imag, load.coherence])
+    np.savetxt(path, a, delimiter=',', header=RESPONSE_HEADER, comments='', fmt='%.10g')
+
+
+def read_identify(folder) -> AxisResponse:
+    """An identify output folder (identify.yaml, and response.csv when it is there) as an
+    AxisResponse. Raises ValueError naming what is missing or wrong."""
+    import yaml
+    d = pathlib.Path(folder)
+    if d.is_file():
+        d = d.parent
+    path = d / 'identify.yaml'
+    if not path.is_file():
+        raise ValueError(f'{path}: not found (run identify first: it writes identify.yaml)')
+    try:
+        r = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise ValueError(f'{path}: not YAML: {e}') from None
+    if not isinstance(r, dict):
+        raise ValueError(f'{path}: not an identify result')
+    need = ('accel_per_volt', 'resonance_hz', 'resonance_damping', 'antiresonance_hz',
+            'antiresonance_damping', 'delay_ticks')
+    missing = [k for k in need if k not in r]
+    if missing:
+        raise ValueError(f'{path}: missing {", ".join(missing)}')
+    period = float(r.get('sample_period', 1e-3))
+    model = idf.TwoMassModel(float(r['accel_per_volt']), float(r.get('viscous_pole', 0.05)),
+                             float(r['resonance_hz']), float(r['resonance_damping']),
+                             float(r['antiresonance_hz']), float(r['antiresonance_damping']),
+                             float(r.get('load_zero', 0.0)))
+    motor = load = None
+    csv = d / RESPONSE_FILE
+    if csv.is_file():
+        try:
+            a = np.loadtxt(csv, delimiter=',', skiprows=1, ndmin=2)
+        except ValueError as e:
+            raise ValueError(f'{csv}: {e}') from None
+        if a.shape[1] != 7:
+            raise ValueError(f'{csv}: expected 7 columns ({RESPONSE_HEADER})')
+        rate = 1.0 / period
+        motor = idf.FrequencyResponse(a[:, 0], a[:, 1] + 1j * a[:, 2], a[:, 3], rate,
+                                      'stepped_sine')
+        load = idf.FrequencyResponse(a[:, 0], a[:, 4] + 1j * a[:, 5], a[:, 6], rate,
+                                     'stepped_sine')
+    return AxisResponse(model, period, int(r['delay_ticks']), float(r.get('coulomb', 0.0)),
+                        float(r.get('viscous', 0.0)), motor, load)
+
+
+def params_yaml(registers: dict, axis: str = 'x', node: str = 'controller',
+                comment: str = '') -> str:
+    """`ros2 param load` YAML of the registers (every value a double, core.registers.yaml_float)."""
+    lines = [f'# {line}' for line in comment.splitlines()]
+    lines += [f'{node}:', '  ros__parameters:']
+    lines += [f'    {axis}.{k}: {yaml_float(v)}' for k, v in registers.items()]
+    return '\n'.join(lines) + '\n'
+
+
+def _fmt_margins(ev: Evaluation) -> str:
+    meas = ''
+    if ev.measured is not None:
+        pm = (f'{ev.measured.phase_margin_deg:.1f}°' if ev.measured.crossover_hz is not None
+              else 'no gain crossover among them')
+        gm = (f'{ev.measured.gain_margin_db:.1f} dB' if math.isfinite(ev.measured.gain_margin_db)
+              else 'no phase crossover among them')
+        meas = (f' (measured points: {gm}, {pm}; model: {ev.model.gain_margin_db:.1f} dB, '
+                f'{ev.model.phase_margin_deg:.1f}°)')
+    cross = f'{ev.crossover_hz:.1f} Hz' if ev.crossover_hz is not None else 'none'
+    return (f'gain margin {ev.gain_margin_db:.1f} dB, phase margin {ev.phase_margin_deg:.1f}°'
+            f'{meas}; crossover {cross}, bandwidth {ev.bandwidth_hz:.1f} Hz')
+
+
+def format_proposal(p: Proposal, before: Evaluation | None = None) -> str:
+    """The proposal as text: registers (before and proposed), margins, bandwidth, notes."""
+    lines = [f'autotune: preset {p.preset.name} ({p.preset.note}), feedback {p.feedback}']
+    lines.append('| register | before | proposed |')
+    lines.append('|---|---:|---:|')
+    for k, v in p.registers.items():
+        b = '' if before is None or k not in before.registers else \
+            f'{float(before.registers[k]):.6g}'
+        lines.append(f'| {k} | {b} | {v:.6g} |')
+    if p.notch is not None:
+        n = p.notch
+        lines.append(f'notch: zeros {n.f_zero:.1f} Hz ζ {n.zeta_zero:.3f}, poles {n.f_pole:.1f} '
+                     f'Hz ζ {n.zeta_pole:.2f} (core.notch.design, prewarp)')
+    if before is not None:
+        lines.append(f'before:   {_fmt_margins(before)}')
+    lines.append(f'proposed: {_fmt_margins(p.evaluation)}')
+    lines.append(f'crossover limit of the preset {p.cap_hz:.1f} Hz '
+                 f'({p.preset.bandwidth_fraction:g} of the anti-resonance); bounded by '
+                 f'{p.limit}; PID zeros at crossover/{p.shape[0]:g} and '
+                 f'/{p.shape[0] * p.shape[1]:g}')
+    lines += p.notes
+    verdict = 'meets' if p.ok else 'MISSES'
+    lines.append(f'{verdict} the preset\'s {p.preset.gain_margin_db:g} dB / '
+                 f'{p.preset.phase_margin_deg:g}°' +
+                 ('' if p.ok else ': ' + '; '.join(p.evaluation.problems(p.preset))))
+    return '\n'.join(lines)
+
+
+def _wrapped(deg):
+    """Phase in [-360°, 0): −180° (the stability point) in the middle of the plot."""
+    return np.mod(deg, 360.0) - 360.0
+
+
+def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = '') -> None:
+    """Bode plot of the open loop L of each (label, Evaluation): the model as a line, the
+    measured points as markers, gain and phase margins marked (model) at their crossovers."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (ax_m, ax_p) = plt.subplots(2, 1, figsize=(9, 7.5), sharex=True)
+    f = axis.grid()
+    gm_, gl_ = axis.plant(f)
+    meas = axis.measured()
+    T = axis.sample_period
+    for i, (label, ev) in enumerate(evaluations):
+        c = f'C{i}'
+        g = _check_gains(ev.registers)
+        L = _loop(f, g, gm_, gl_, ev.feedback, T)
+        ph = _wrapped(np.degrees(np.angle(L)))
+        ax_m.semilogx(f, 20 * np.log10(np.abs(L)), '-', color=c, lw=1.2,
+                      label=f'{label}: GM {ev.gain_margin_db:.1f} dB, PM '
+                            f'{ev.phase_margin_deg:.1f}°, crossover '
+                            f'{ev.crossover_hz or float("nan"):.1f} Hz')
+        gap = np.abs(np.diff(ph)) > 180.0             # a wrap, not a line across the plot
+        ax_p.semilogx(f, np.where(np.append(gap, False), np.nan, ph), '-', color=c, lw=1.2)
+        if meas is not None:
+            fm, mm, ml = meas
+            Lm = _loop(fm, g, mm, ml, ev.feedback, T)
+            phm = _wrapped(np.degrees(np.angle(Lm)))
+            ax_m.semilogx(fm, 20 * np.log10(np.abs(Lm)), 'o', ms=3.5, mfc='none', mec=c)
+            ax_p.semilogx(fm, phm, 'o', ms=3.5, mfc='none', mec=c)
+        m = ev.model
+        if m.crossover_hz is not None:
+            fc = m.crossover_hz
+            pc = m.phase_margin_deg - 180.0
+            ax_p.annotate('', xy=(fc, pc), xytext=(fc, pc - m.phase_margin_deg),
+                          arrowprops=dict(arrowstyle='<->', color=c, lw=1.5))
+            ax_p.text(fc * 1.04, pc - m.phase_margin_deg / 2, f'PM {m.phase_margin_deg:.1f}°',
+                      color=c, fontsize=8)
+            ax_m.plot([fc], [0.0], 'x', color=c, ms=8)
+        if m.phase_crossover_hz is not None:
+            fp = m.phase_crossover_hz
+            lm = -m.gain_margin_db
+            ax_m.annotate('', xy=(fp, 0.0), xytext=(fp, lm),
+                          arrowprops=dict(arrowstyle='<->', color=c, lw=1.5))
+            ax_m.text(fp * 1.04, lm / 2, f'GM {m.gain_margin_db:.1f} dB', color=c, fontsize=8)
+    for a in (ax_m, ax_p):
+        a.axvline(axis.model.resonance_hz, color='k', ls=':', lw=0.8)
+        a.axvline(axis.model.antiresonance_hz, color='grey', ls=':', lw=0.8)
+        a.grid(True, which='both', alpha=0.3)
+    ax_m.axhline(0.0, color='k', lw=0.8)
+    ax_p.axhline(-180.0, color='k', lw=0.8)
+    ax_m.set_ylim(-40, 60)
+    ax_m.set_ylabel('|L| [dB]')
+    ax_p.set_ylabel('phase of L [°]')
+    ax_p.set_ylim(-360, 0)
+    ax_p.set_yticks(list(range(-360, 1, 45)))
+    ax_p.set_xlabel('frequency [Hz]')
+    ax_m.set_xlim(1.0, axis.nyquist)
+    ax_m.legend(fontsize=8, loc='lower left')
+    ax_m.set_title(title or 'open loop (line: model, markers: measured; one tick of latency, '
+                   'notch included)', fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ================================================================================================
+# verification: the moves, measured on the controller's own joint_states
+
+@dataclass
+class MoveResult:
+    """One verified move: `settle_ms` from the end of the profile (AT_TARGET) to MOTION_DONE
+    (inf: none), `overshoot` past the target in the direction of the move and `final_error`
+    at rest [load counts], `output_pp` the output's peak-to-peak at rest [V] (ringing); the
+    trace (time from the end of the profile [s], error [counts]) for the plot."""
+    label: str
+    target: float
+    settle_ms: float
+    overshoot: float
+    final_error: float
+    output_pp: float
+    t: np.ndarray
+    error: np.ndarray
+
+
+def move_result(label, target, start, t, position, effort, t_end, t_done, rest_from,
+                counts_per_m) -> MoveResult:
+    """Metrics of a move from the controller's samples (stamp t [s], load position [m],
+    output [V]): t_end the end of the profile, t_done MOTION_DONE (None: not raised), samples
+    from `rest_from` [s] on are 'at rest' (final error: their mean; output_pp: their spread)."""
+    t = np.asarray(t, dtype=float)
+    pos = np.asarray(position, dtype=float)
+    eff = np.asarray(effort, dtype=float)
+    if t.size == 0 or t.size != pos.size or t.size != eff.size:
+        raise ValueError('move_result needs samples of equal length')
+    sign = 1.0 if target >= start else -1.0
+    err = (pos - target) * counts_per_m
+    rest = t >= rest_from
+    if not np.any(rest):
+        raise ValueError('no samples at rest')
+    settle = math.inf if t_done is None or t_end is None else max(t_done - t_end, 0.0) * 1e3
+    over = max(0.0, float(np.max(sign * err)))
+    ref = t_end if t_end is not None else float(t[0])
+    return MoveResult(label, float(target), settle, over, float(np.mean(err[rest])),
+                      float(np.ptp(eff[rest])), t - ref, err)
+
+
+def format_verification(runs: dict, evaluations: dict) -> str:
+    """Before/after table: per move settle time, overshoot, final error, output p-p; then the
+    median settle time and the margins and bandwidth of each set."""
+    lines = ['| gains | move | settle [ms] | overshoot [counts] | final error [counts] | '
+             'output p-p at rest [V] |', '|---|---|---:|---:|---:|---:|']
+    for name, moves in runs.items():
+        for m in moves:
+            s = f'{m.settle_ms:.0f}' if math.isfinite(m.settle_ms) else 'no MOTION_DONE'
+            lines.append(f'| {name} | {m.label} | {s} | {m.overshoot:.2f} | '
+                         f'{m.final_error:+.2f} | {m.output_pp:.3f} |')
+    lines.append('')
+    lines.append('| gains | median settle [ms] | gain margin [dB] | phase margin [°] | '
+                 'crossover [Hz] | bandwidth [Hz] |')
+    lines.append('|---|---:|---:|---:|---:|---:|')
+    for name, moves in runs.items():
+        ev = evaluations[name]
+        med = float(np.median([m.settle_ms for m in moves]))
+        cross = f'{ev.crossover_hz:.1f}' if ev.crossover_hz is not None else '-'
+        lines.append(f'| {name} | {med:.0f} | {ev.gain_margin_db:.1f} | '
+                     f'{ev.phase_margin_deg:.1f} | {cross} | {ev.bandwidth_hz:.1f} |')
+    return '\n'.join(lines)
+
+
+def plot_steps(path, runs: dict, *, title: str = '') -> None:
+    """Slide error [counts] against time from the end of each move's profile, one panel per
+    move, every set of gains (before / after) in it; MOTION_DONE marked."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    names = list(runs)
+    n = max(len(v) for v in runs.values())
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), sharey=True, squeeze=False)
+    for j in range(n):
+        ax = axes[0][j]
+        for i, name in enumerate(names):
+            if j >= len(runs[name]):
+                continue
+            m = runs[name][j]
+            keep = (m.t >= -0.1) & (m.t <= 0.8)
+            ax.plot(m.t[keep] * 1e3, m.error[keep], '-', color=f'C{i}', lw=1.1,
+                    label=f'{name}: settle {m.settle_ms:.0f} ms, final {m.final_error:+.2f}')
+            if math.isfinite(m.settle_ms):
+                ax.axvline(m.settle_ms, color=f'C{i}', ls=':', lw=1)
+        ax.axhspan(-1, 1, color='g', alpha=0.1)
+        ax.set_title(runs[names[0]][j].label, fontsize=9)
+        ax.set_xlabel('time from the end of the profile [ms]')
+        ax.set_ylim(-25, 25)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc='lower right')
+    axes[0][0].set_ylabel('slide error (joint_states) [linear counts]')
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,350 @@
+"""`autotune`: gains and a notch for an axis from its measured response, with the margins they
+give on the measured open loop; on request applied and verified with real moves (the ROS shell
+of motion_ctrl/analysis/autotune.py; Kollmorgen WorkBench's Performance Servo Tuner).
+
+1. The response: an `identify` output folder (`--from DIR`: identify.yaml, the fitted two-mass
+   model and friction, and response.csv, the measured points), or, without --from, `identify`
+   is run on the axis first (into OUT/identify).
+2. The proposal for `--preset` stiff / medium / soft and the axis's `feedback` (dual or motor):
+   kp, ki, kd, kvff, kaff, friction_ff and, where the resonance limits the loop, the Ixx36–39
+   notch; printed with its margins and bandwidth beside the controller's current registers;
+   written as `ros2 param load` YAML (autotune.yaml), with a Bode plot of both open loops,
+   margins marked (open_loop.png) and report.md.
+3. `--apply`: the demo's moves (1 in, +2 in, back to +1 in: the headline move after a reversal)
+   with the current registers, the proposal loaded (load_parameter_file_atomically, as
+   `ros2 param load`), the same moves again; a before/after table of settle time (end of the
+   profile to MOTION_DONE), overshoot, final error and the output's peak-to-peak at rest, from
+   the controller's own joint_states and status (never plant_states), steps.png and
+   verification.yaml (the same numbers).
+
+With --from and neither --apply nor --spawn it needs no ROS: the registers it compares with are
+the register table's defaults (or `--current FILE`, a `ros2 param load` YAML).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import pathlib
+import sys
+
+import numpy as np
+
+from motion_ctrl.analysis import autotune as at
+from motion_ctrl.core.registers import INCH, axis_defaults
+
+MOVES = (('0 -> 1 in (after the return to 0)', INCH), ('+2 in', 2 * INCH),
+         ('back to +1 in (reversal)', INCH))
+READ = ('feedback', 'load_counts_per_m') + at.GAIN_REGISTERS
+REST_SAMPLES = 200          # joint_states samples after MOTION_DONE: the final error, the output
+
+
+class AutotuneError(RuntimeError):
+    pass
+
+
+class MoveRecorder:
+    """The controller's joint_states (raw, decoded after) while a move is measured, each with
+    how many status changes had arrived before it: the status events get the samples' stamps
+    (the controller's clock: sim time in lockstep)."""
+
+    def __init__(self, client, axis: str):
+        from sensor_msgs.msg import JointState
+        import msg_defs as md
+        self.client, self.axis = client, axis
+        self._type = JointState
+        self._raw: list = []
+        self._on = False
+        client.create_subscription(JointState, md.JOINT_STATES, self._on_joint,
+                                   md.SERVO_READ_QOS, raw=True)
+
+    def _on_joint(self, data: bytes) -> None:
+        if self._on:
+            self._raw.append((data, len(self.client.status_log[self.axis])))
+
+    def move(self, label: str, target: float, counts_per_m: float,
+             timeout: float) -> at.MoveResult:
+        from rclpy.serialization import deserialize_message
+        from msg_defs.status import Status
+        from motion_ctrl.ros.client import FAULTS
+        client, name = self.client, self.axis
+        self._raw.clear()
+        self._on = True
+        mark = len(client.status_log[name])
+        try:
+            if not client.spin_until(lambda: len(self._raw) > 0, 5.0):
+                raise AutotuneError('no joint_states from the controller')
+            got = client.move({name: target}, timeout=timeout)
+            if got is None:
+                word = client.status[name] or 0
+                raise AutotuneError(f'move to {target:.4f} m: no MOTION_DONE within {timeout:g} s '
+                                    f'(status {Status(word)!r})')
+            n0 = len(self._raw)
+            if not client.spin_until(lambda: len(self._raw) >= n0 + REST_SAMPLES, 10.0):
+                raise AutotuneError('joint_states stopped after the move')
+        finally:
+            self._on = False
+        log = client.status_log[name]
+        words = [w for _, w in log]
+        # the move: the first word after the target without MOTION_DONE, then AT_TARGET, then
+        # MOTION_DONE (client.move checked there was no fault)
+        i0 = next((i for i in range(mark, len(words)) if not words[i] & Status.MOTION_DONE),
+                  None)
+        if i0 is None:
+            raise AutotuneError(f'move to {target:.4f} m: MOTION_DONE never cleared')
+        i_end = next((i for i in range(i0, len(words)) if words[i] & Status.AT_TARGET), None)
+        i_done = next((i for i in range(i_end if i_end is not None else i0, len(words))
+                       if words[i] & Status.MOTION_DONE), None)
+        if any(words[i] & FAULTS for i in range(i0, len(words))):
+            raise AutotuneError(f'move to {target:.4f} m faulted ({Status(words[-1])!r})')
+        t, pos, eff, seen = [], [], [], []
+        for data, count in self._raw:
+            msg = deserialize_message(data, self._type)
+            try:
+                k = list(msg.name).index(name)
+            except ValueError:
+                continue
+            t.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+            pos.append(msg.position[k])
+            eff.append(msg.effort[k] if len(msg.effort) > k else 0.0)
+            seen.append(count)
+        seen_a = np.asarray(seen)
+
+        def stamp(index):
+            """The stamp of the first sample that arrived after status event `index`."""
+            if index is None:
+                return None
+            after = np.flatnonzero(seen_a > index)
+            return t[int(after[0])] if after.size else None
+        start = pos[0]
+        t_end, t_done = stamp(i_end), stamp(i_done)
+        rest_from = t[-REST_SAMPLES // 2]
+        return at.move_result(label, target, start, t, pos, eff, t_end, t_done, rest_from,
+                              counts_per_m)
+
+
+def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, log=print) -> list:
+    """Back to 0, then the demo's three moves; returns their MoveResults."""
+    axis.move(0.0, timeout)
+    out = []
+    for label, target in MOVES:
+        r = rec.move(label, target, counts_per_m, timeout)
+        log(f'autotune:   {label}: settle {r.settle_ms:.0f} ms, overshoot {r.overshoot:.2f}, '
+            f'final error {r.final_error:+.2f} counts, output p-p {r.output_pp:.3f} V')
+        out.append(r)
+    return out
+
+
+def read_current(path, axis: str) -> dict:
+    """The axis's registers from a `ros2 param load` YAML file (`<axis>.<register>` keys) over
+    the register table's defaults: {register: value}."""
+    import yaml
+    try:
+        doc = yaml.safe_load(pathlib.Path(path).read_text())
+        params = next(iter(doc.values()))['ros__parameters']
+        mine = {k.split('.', 1)[1]: v for k, v in params.items()
+                if k.startswith(f'{axis}.')}
+    except (OSError, yaml.YAMLError, AttributeError, KeyError, StopIteration, TypeError) as e:
+        raise AutotuneError(f'--current {path}: not a ros2 param load file ({e})') from None
+    if not mine:
+        raise AutotuneError(f'--current {path}: no registers of axis {axis} ({axis}.kp, ...)')
+    return axis_defaults() | mine
+
+
+def propose_and_write(response: at.AxisResponse, current: dict, args, out: pathlib.Path,
+                      log=print):
+    """The proposal, printed and written (autotune.yaml, open_loop.png, report.md)."""
+    feedback = args.feedback or current.get('feedback', 'dual')
+    try:
+        before = at.evaluate(response, current, feedback)
+        prop = at.propose(response, args.preset, feedback, notch={'auto': None, 'on': True,
+                                                                  'off': False}[args.notch])
+    except ValueError as e:
+        raise AutotuneError(str(e)) from None
+    text = at.format_proposal(prop, before)
+    log(text)
+    header = (f'motion_ctrl autotune: preset {prop.preset.name}, feedback {prop.feedback}\n'
+              f'gain margin {prop.evaluation.gain_margin_db:.1f} dB, phase margin '
+              f'{prop.evaluation.phase_margin_deg:.1f}° on the measured open loop (one tick of '
+              f'latency), crossover {prop.evaluation.crossover_hz or 0:.1f} Hz, bandwidth '
+              f'{prop.evaluation.bandwidth_hz:.1f} Hz\n'
+              f'load with: ros2 param load /controller <this file>')
+    yaml_path = out / 'autotune.yaml'
+    text_yaml = at.params_yaml(prop.registers, args.axis, comment=header)
+    if args.feedback and args.feedback != current.get('feedback'):
+        # tuned for another loop than the axis runs: the file switches it (with the gains, at
+        # once: load_parameter_file_atomically)
+        text_yaml += f'    {args.axis}.feedback: {args.feedback}\n'
+        log(f'autotune: the file sets {args.axis}.feedback: {args.feedback} (now '
+            f'{current.get("feedback")})')
+    yaml_path.write_text(text_yaml)
+    png = out / 'open_loop.png'
+    at.plot_open_loop(png, response, [('current', before), (f'{prop.preset.name} (proposed)',
+                                                            prop.evaluation)],
+                      title=f'axis {args.axis}, feedback {prop.feedback}: open loop L '
+                            '(line: model, markers: measured points; one tick of latency)')
+    (out / 'report.md').write_text(text + '\n')
+    log(f'autotune: wrote {yaml_path}, {png}, {out / "report.md"}')
+    if response.motor is None:
+        log('autotune: note: no response.csv beside identify.yaml: the margins are the '
+            "model's only (identify writes the measured points since autotune)")
+    return prop, before, yaml_path
+
+
+def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
+    from motion_ctrl.ros.client import FAULTS
+    from msg_defs.status import Status
+    from motion_ctrl.tools.calibrate import CalibrationError
+    word = client.status[args.axis] or 0
+    if word & FAULTS or not word & Status.ENABLED:
+        raise AutotuneError(f'axis {args.axis} is not ready ({Status(word)!r}): reset and '
+                            f'enable it first ({args.axis}/reset, {args.axis}/enable)')
+    rec = MoveRecorder(client, args.axis) if args.apply else None
+    current = axis.get(*READ)
+    if args.source is None:
+        from motion_ctrl.tools import identify as tid
+        from rclpy.parameter import parameter_value_to_python
+        iargs = tid.parser().parse_args(['--axis', args.axis])
+        rate = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]
+        iargs.servo_rate = float(parameter_value_to_python(rate))  # type: ignore[arg-type]
+        idir = out / 'identify'
+        idir.mkdir(exist_ok=True)
+        log(f'autotune: measuring the axis first (identify into {idir})')
+        try:
+            tid.identify(axis, iargs, idir, log=log)
+        except tid.IdentifyError as e:
+            raise AutotuneError(f'identify: {e}') from None
+        args.source = idir
+    response = _read(args.source)
+    prop, before, yaml_path = propose_and_write(response, current, args, out, log)
+    result = dict(proposal=prop, before=before)
+    if not args.apply:
+        return result
+    assert rec is not None
+    cpm = float(current['load_counts_per_m'])
+    saved = {k: current[k] for k in at.GAIN_REGISTERS}
+    loaded = False
+    try:
+        log('autotune: verification, current registers')
+        runs = {'before': run_moves(rec, axis, cpm, args.move_timeout, log)}
+        axis.move(0.0, args.move_timeout)
+        axis.load_file(yaml_path)
+        loaded = True
+        log(f'autotune: loaded {yaml_path}; verification, proposed registers')
+        runs['after'] = run_moves(rec, axis, cpm, args.move_timeout, log)
+    except (AutotuneError, CalibrationError) as e:
+        if loaded:
+            log(f'autotune: {e}; putting the registers back')
+            axis.set(saved)
+        raise
+    if args.restore:
+        axis.set(saved)
+        log('autotune: registers put back (--restore)')
+    table = at.format_verification(runs, {'before': before, 'after': prop.evaluation})
+    log(table)
+    png = out / 'steps.png'
+    at.plot_steps(png, runs, title=f'axis {args.axis}: the demo\'s moves, before and after '
+                  f'autotune --preset {prop.preset.name} (controller joint_states)')
+    with open(out / 'report.md', 'a') as f:
+        f.write('\n' + table + '\n')
+    import yaml
+    evs = {'before': before, 'after': prop.evaluation}
+    summary = {name: dict(
+        gain_margin_db=float(evs[name].gain_margin_db),
+        phase_margin_deg=float(evs[name].phase_margin_deg),
+        crossover_hz=float(evs[name].crossover_hz or 0.0),
+        bandwidth_hz=float(evs[name].bandwidth_hz),
+        moves=[dict(move=m.label, target=m.target, settle_ms=float(m.settle_ms),
+                    overshoot_counts=float(m.overshoot), final_error_counts=float(m.final_error),
+                    output_pp_v=float(m.output_pp)) for m in moves])
+        for name, moves in runs.items()}
+    (out / 'verification.yaml').write_text(yaml.safe_dump(summary, sort_keys=False,
+                                                          allow_unicode=True))
+    log(f'autotune: wrote {png}')
+    result['runs'] = runs
+    return result
+
+
+def _read(source) -> at.AxisResponse:
+    try:
+        return at.read_identify(source)
+    except ValueError as e:
+        raise AutotuneError(str(e)) from None
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog='autotune', description='Propose gains (kp, ki, kd, kvff, kaff, friction_ff) and '
+        'a notch for a preset from the measured response, with the margins on the measured '
+        'open loop; write ros2 param load YAML and a Bode plot; --apply loads and verifies it '
+        'with real moves.')
+    ap.add_argument('--axis', default='x')
+    ap.add_argument('--from', dest='source', default=None, metavar='DIR',
+                    help='identify output folder (identify.yaml, response.csv); without it '
+                    'identify is run on the axis first')
+    ap.add_argument('--preset', choices=sorted(at.PRESETS), default='stiff',
+                    help='stiff, medium: 8 dB / 45° (crossover up to 0.5 / 0.3 of the '
+                    'anti-resonance); soft: 10 dB / 55° (0.2). Default stiff')
+    ap.add_argument('--feedback', choices=('dual', 'motor', 'sampled'), default=None,
+                    help='loop to tune (default: the controller\'s feedback register, dual '
+                    'offline)')
+    ap.add_argument('--notch', choices=('auto', 'on', 'off'), default='auto',
+                    help='auto (default): only where the resonance limits the loop')
+    ap.add_argument('--current', default=None, metavar='FILE',
+                    help='offline: the registers to compare with, as ros2 param load YAML '
+                    '(default: the register table\'s defaults)')
+    ap.add_argument('--apply', action='store_true',
+                    help='load the proposal into the controller and verify it with the demo\'s '
+                    'moves before and after')
+    ap.add_argument('--restore', action='store_true',
+                    help='with --apply: put the previous registers back after the verification')
+    ap.add_argument('--move-timeout', type=float, default=10.0)
+    ap.add_argument('-o', '--out', default=None,
+                    help='output directory (default out/autotune-<time>)')
+    ap.add_argument('--spawn', action='store_true',
+                    help='start the simulated slide (plant + controller processes) for the run')
+    ap.add_argument('--lockstep', action='store_true',
+                    help='with --spawn: the deterministic lockstep simulation')
+    ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
+                    help='with --spawn: a plant parameter, e.g. x.screw_stiffness:=1.0e6')
+    ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
+                    help='with --spawn: a controller parameter')
+    return ap
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    if args.lockstep and not args.spawn:
+        print('autotune: --lockstep needs --spawn', file=sys.stderr)
+        return 2
+    if args.restore and not args.apply:
+        print('autotune: --restore needs --apply', file=sys.stderr)
+        return 2
+    if not (math.isfinite(args.move_timeout) and args.move_timeout > 0):
+        print('autotune: --move-timeout must be > 0 s', file=sys.stderr)
+        return 2
+    from motion_ctrl.tools.calibrate import CalibrationError, axis_session
+    offline = args.source is not None and not (args.apply or args.spawn)
+    try:
+        if offline:
+            import datetime
+            out = pathlib.Path(args.out or datetime.datetime.now().strftime(
+                'out/autotune-%Y%m%d-%H%M%S'))
+            out.mkdir(parents=True, exist_ok=True)
+            current = read_current(args.current, args.axis) if args.current else axis_defaults()
+            prop, _, _ = propose_and_write(_read(args.source), current, args, out)
+            return 0 if prop.ok else 1
+        if args.current:
+            print('autotune: --current is for offline use (the controller\'s registers are '
+                  'read when it is there)', file=sys.stderr)
+            return 2
+        with axis_session(args, 'autotune', services=args.source is None) as (client, axis,
+                                                                             out):
+            result = autotune_ros(client, axis, args, out)
+    except (AutotuneError, CalibrationError) as e:
+        print(f'autotune: {e}', file=sys.stderr)
+        return 1
+    return 0 if result['proposal'].ok else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
