@@ -46,9 +46,9 @@ as library functions on sampled records (numpy arrays, one sample per servo tick
    :func:`plot_bode`.
 
 Units follow the controller's registers: positions in metres (load-equivalent on the motor
-encoder, as `Axis` converts counts), volts, seconds. No rclpy: the ROS tools that excite the
-loop inside the servo tick and gather the records are not written yet (README, "Tuning an
-axis").
+encoder, as `Axis` converts counts), volts, seconds. No rclpy: the excitation runs inside the
+servo tick (core.gather), and the `identify` and `autotune` tools (motion_ctrl.tools) fetch
+its records over ROS and hand them to these functions.
 """
 from __future__ import annotations
 
