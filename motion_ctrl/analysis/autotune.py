@@ -85,15 +85,6 @@ PRESETS = {
 }
 
 
-def _positive(name, v) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise ValueError(f'{name} must be a number, got {v!r}')
-    v = float(v)
-    if not (math.isfinite(v) and v > 0.0):
-        raise ValueError(f'{name} must be a finite number > 0, got {v!r}')
-    return v
-
-
 @dataclass
 class AxisResponse:
     """An axis as identify measured it: the fitted model (sampled at `sample_period`, with
@@ -109,10 +100,10 @@ class AxisResponse:
     load: idf.FrequencyResponse | None = None
 
     def __post_init__(self):
-        _positive('sample_period', self.sample_period)
+        idf.positive('sample_period', self.sample_period)
         m = self.model
         for name in ('accel_per_volt', 'resonance_hz', 'antiresonance_hz'):
-            _positive(name, getattr(m, name))
+            idf.positive(name, getattr(m, name))
         nyq = 0.5 / self.sample_period
         if not m.antiresonance_hz < m.resonance_hz < nyq:
             raise ValueError(f'the model needs anti-resonance < resonance < Nyquist ({nyq:g} Hz), '

@@ -97,7 +97,8 @@ def _record(name, x, n=None) -> np.ndarray:
     return a
 
 
-def _positive(name, v) -> float:
+def positive(name, v) -> float:
+    """`v` as a float when it is a finite number > 0, else ValueError naming `name`."""
     if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
         raise ValueError(f'{name} must be a number, got {v!r}')
     v = float(v)
@@ -154,7 +155,7 @@ def frequency_response(u, y, sample_rate, *, r=None, nperseg=None, noverlap=None
     an integrating plant's drift becomes a stationary velocity; use it when the position wanders
     far over the record. The 0 Hz bin is dropped.
     """
-    fs = _positive('sample_rate', sample_rate)
+    fs = positive('sample_rate', sample_rate)
     u = _record('u', u)
     y = _record('y', y, u.size)
     if r is not None:
@@ -393,7 +394,7 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
     default slide): the band must reach down to a few times σ/2π for it to mean anything; the
     inertias and the resonances do not need that.
     """
-    fpv = None if force_per_volt is None else _positive('force_per_volt', force_per_volt)
+    fpv = None if force_per_volt is None else positive('force_per_volt', force_per_volt)
     sets = [('motor', motor)] + ([('load', load)] if load is not None else [])
     data = []
     for name, fr in sets:
@@ -602,7 +603,7 @@ def pid_response(freq, *, kp, ki, kd, servo_period, notch=(0.0, 0.0, 0.0, 0.0)):
     encoder position; F the notch, Ixx36–39, normalised to unity DC gain). Returns
     (P(z), D(z)): the transfer from the position-loop encoder and from the velocity-loop encoder
     to −u [V/m]. Feedforward (kvff, kaff, friction) acts on the command, not on the loop."""
-    T = _positive('servo_period', servo_period)
+    T = positive('servo_period', servo_period)
     f = np.asarray(freq, dtype=float)
     z = np.exp(1j * TWO_PI * f * T)
     Biquad.validate(*notch)
@@ -695,9 +696,9 @@ def physical_units(fit: TwoMassFit, *, slide_mass=None, force_per_volt=None) -> 
     if (slide_mass is None) == (force_per_volt is None):
         raise ValueError('give exactly one of slide_mass and force_per_volt')
     if slide_mass is not None:
-        fpv = _positive('slide_mass', slide_mass) / fit.load_inertia
+        fpv = positive('slide_mass', slide_mass) / fit.load_inertia
     else:
-        fpv = _positive('force_per_volt', force_per_volt)
+        fpv = positive('force_per_volt', force_per_volt)
     return dict(force_per_volt=fpv, motor_mass=fit.motor_inertia * fpv,
                 slide_mass=fit.load_inertia * fpv, total_mass=fit.inertia * fpv,
                 stiffness=fit.stiffness * fpv, viscous=fit.viscous * fpv)

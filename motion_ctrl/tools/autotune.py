@@ -31,6 +31,7 @@ import numpy as np
 
 from motion_ctrl.analysis import autotune as at
 from motion_ctrl.core.registers import INCH, axis_defaults
+from motion_ctrl.tools.calibrate import session_arguments
 
 MOVES = (('0 -> 1 in (after the return to 0)', INCH), ('+2 in', 2 * INCH),
          ('back to +1 in (reversal)', INCH))
@@ -298,16 +299,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--restore', action='store_true',
                     help='with --apply: put the previous registers back after the verification')
     ap.add_argument('--move-timeout', type=float, default=10.0)
-    ap.add_argument('-o', '--out', default=None,
-                    help='output directory (default out/autotune-<time>)')
-    ap.add_argument('--spawn', action='store_true',
-                    help='start the simulated slide (plant + controller processes) for the run')
-    ap.add_argument('--lockstep', action='store_true',
-                    help='with --spawn: the deterministic lockstep simulation')
-    ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a plant parameter, e.g. x.screw_stiffness:=1.0e6')
-    ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a controller parameter')
+    session_arguments(ap, 'autotune', 'x.screw_stiffness:=1.0e6')
     return ap
 
 

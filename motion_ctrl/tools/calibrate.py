@@ -321,17 +321,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--keep-motor', action='store_true',
                     help='leave the axis on feedback: motor afterwards (default: put it back)')
     ap.add_argument('--move-timeout', type=float, default=10.0)
-    ap.add_argument('-o', '--out', default=None,
-                    help='output directory (default out/calibrate-<time>)')
-    ap.add_argument('--spawn', action='store_true',
-                    help='start the simulated slide (plant + controller processes) for the run')
-    ap.add_argument('--lockstep', action='store_true',
-                    help='with --spawn: the deterministic lockstep simulation')
-    ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a plant parameter, e.g. x.backlash:=1.524e-4')
-    ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a controller parameter (default feedback_timeout:=1.5, '
-                    'as the DDS tests: see SPAWN_CONTROLLER)')
+    session_arguments(ap, 'calibrate', 'x.backlash:=1.524e-4')
     return ap
 
 
@@ -367,6 +357,22 @@ def _spawn(args, out: pathlib.Path):
         controller = NodeProcess('controller_node', d / 'controller.yaml', controller_params,
                                  out / 'controller.log', env=env)
     return plant, controller
+
+
+def session_arguments(ap: argparse.ArgumentParser, tool: str, plant_example: str) -> None:
+    """The options of a tool run on one axis (axis_session): output folder, --spawn,
+    --lockstep, plant and controller parameters for the spawned slide."""
+    ap.add_argument('-o', '--out', default=None,
+                    help=f'output directory (default out/{tool}-<time>)')
+    ap.add_argument('--spawn', action='store_true',
+                    help='start the simulated slide (plant + controller processes) for the run')
+    ap.add_argument('--lockstep', action='store_true',
+                    help='with --spawn: the deterministic lockstep simulation')
+    ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
+                    help=f'with --spawn: a plant parameter, e.g. {plant_example}')
+    ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
+                    help='with --spawn: a controller parameter (default feedback_timeout:=1.5, '
+                    'as the DDS tests: see SPAWN_CONTROLLER)')
 
 
 @contextlib.contextmanager

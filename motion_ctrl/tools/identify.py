@@ -37,6 +37,7 @@ import numpy as np
 
 from motion_ctrl.analysis import identify as idf
 from motion_ctrl.core import excitation as ex
+from motion_ctrl.tools.calibrate import session_arguments
 
 EXCITATION_REGISTERS = ('excitation_signal', 'excitation_amplitude', 'excitation_band_low',
                         'excitation_band_high', 'excitation_duration', 'excitation_points',
@@ -337,16 +338,7 @@ def parser() -> argparse.ArgumentParser:
                     help='motor Kt [N·m/A] (with --lead): the amplifier gain in A/V too')
     ap.add_argument('--servo-rate', type=float, default=None,
                     help=argparse.SUPPRESS)     # read from the controller
-    ap.add_argument('-o', '--out', default=None,
-                    help='output directory (default out/identify-<time>)')
-    ap.add_argument('--spawn', action='store_true',
-                    help='start the simulated slide (plant + controller processes) for the run')
-    ap.add_argument('--lockstep', action='store_true',
-                    help='with --spawn: the deterministic lockstep simulation')
-    ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a plant parameter, e.g. x.slide_mass:=10.0')
-    ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a controller parameter')
+    session_arguments(ap, 'identify', 'x.slide_mass:=10.0')
     return ap
 
 
