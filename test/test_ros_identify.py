@@ -20,8 +20,18 @@ LEAD = PLANT_AXIS['lead'].default
 KT = PLANT_AXIS['torque_constant'].default
 
 
+# Known short on the default slide (README "Identifying an axis"): the inertia split rests on
+# (f_r / f_a)² − 1 = 0.163, where 1 % on the anti-resonance is 14 % on the split, and the motor
+# barely moves at the anti-resonance, so coherence is lost there. Lockstep runs here gave
+# −23 … +62 % on the inertia, 73–86 % of the band coherent, and once (CI, 2026-11-23) a
+# "resonance" of 474 Hz from a first run that went wrong. It runs, and shows XFAIL / XPASS.
+DEFAULT_SHORT = pytest.mark.xfail(strict=False, reason='identify on the default slide is not yet '
+                                  'reliable (issue 14; README, Identifying an axis)')
+
+
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize('plant', [{}, {'screw_stiffness': 5.0e6, 'slide_mass': 10.0}],
+@pytest.mark.parametrize('plant', [pytest.param({}, marks=DEFAULT_SHORT),
+                                   {'screw_stiffness': 5.0e6, 'slide_mass': 10.0}],
                          ids=['default', 'soft-heavy'])
 def test_identify_finds_the_plant(node_env, tmp_path, plant):
     truth = SlidePlant(**plant)
@@ -47,15 +57,5 @@ def test_identify_finds_the_plant(node_env, tmp_path, plant):
     inertia = r['motor_inertia_kg_m2'] / truth.params['motor_inertia'] - 1.0
     gain = r['amplifier_gain'] / truth.params['amplifier_gain'] - 1.0
     # Those coherent points must cover most of the band (75 % of the frequencies measured).
-    coherent = r['coherent_fraction']
-    if not plant and (max(abs(inertia), abs(gain)) > 0.10 or coherent < 0.75):
-        # Known short (README "Identifying an axis"): on the default slide the inertia split
-        # rests on (f_r / f_a)² − 1 = 0.163, where 1 % on the anti-resonance is 14 % on the
-        # split, and the motor barely moves at the anti-resonance, so coherence is lost there;
-        # lockstep runs here gave −7 %, −23 %, +17 % and +62 % on the inertia, 73–86 % of the
-        # band coherent. Shown as XFAIL with the numbers, not hidden.
-        pytest.xfail(f'default slide: motor inertia {inertia:+.1%}, amplifier gain '
-                     f'{gain:+.1%} (tolerance 10 %), {coherent:.0%} of the band coherent '
-                     '(wanted 75 %)')
-    assert coherent >= 0.75
+    assert r['coherent_fraction'] >= 0.75
     assert abs(inertia) <= 0.10 and abs(gain) <= 0.10, (inertia, gain)
