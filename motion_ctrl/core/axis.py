@@ -106,13 +106,13 @@ class Axis(AxisCommands):
             raise ValueError('; '.join(f'{self.name}.{r}' for r in reasons))
         r = dict(values)
         T = self.servo_period
-        # Every module validates its own inputs before anything is replaced.
-        self.profile.configure(ProfileConfig.of(r), T)
-        self.settling.configure(SettlingConfig.of(r))
-        self.backlash.configure(BacklashConfig.of(r))
-        self.sampled.configure(CorrectionConfig.of(r))
+        # Validated once, above; each object takes its typed part of the set.
+        self.profile.configure(ProfileConfig.of_checked(r), T)
+        self.settling.configure(SettlingConfig.of_checked(r))
+        self.backlash.configure(BacklashConfig.of_checked(r))
+        self.sampled.configure(CorrectionConfig.of_checked(r))
         old = self.r
-        self.servo.configure(LawConfig.of(r))
+        self.servo.configure(LawConfig.of_checked(r))
         self.r = r
         # What the servo tick needs, derived once here rather than every tick.
         feedback = r['feedback']

@@ -373,11 +373,12 @@ def refusals(values: dict, table: dict | None = None, rules=None) -> list[str]:
 # Field names are register names; no field has a default (the table's is the only one), and
 # derived fields are computed once here so that a servo tick compares no strings and looks up
 # no keys.
-def _of(cls, values: dict):
+def _of(cls, values: dict, checked: bool = False):
     """`cls` from the registers among `values` that it reads, refused (ValueError naming them)
-    by the table's one validation: each value by its row, then the rules among them."""
+    by the table's one validation: each value by its row, then the rules among them. `checked`:
+    the whole set was validated already (Axis.configure), so it is not done again."""
     picked = {f.name: values[f.name] for f in fields(cls) if f.init}
-    reasons = refusals(picked)
+    reasons = [] if checked else refusals(picked)
     if reasons:
         raise ValueError('; '.join(reasons))
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in picked.items()})
@@ -394,6 +395,11 @@ class Config:
     @classmethod
     def of(cls: type[_C], values: dict) -> _C:
         return _of(cls, values)
+
+    @classmethod
+    def of_checked(cls: type[_C], values: dict) -> _C:
+        """`of` for a set that `refusals` has accepted already."""
+        return _of(cls, values, checked=True)
 
 
 @dataclass(frozen=True, slots=True)

@@ -278,7 +278,8 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     return dict(before=before, after=after, tables=tables, seconds=seconds, targets=targets)
 
 
-def _range(text: str) -> tuple[float, float]:
+def pair(text: str) -> tuple[float, float]:
+    """A 'LO,HI' option as two floats (argparse reports a bad one)."""
     lo, _, hi = text.partition(',')
     return float(lo), float(hi)
 
@@ -289,7 +290,7 @@ def parser() -> argparse.ArgumentParser:
         'PMAC COMP/BLCOMP tables and Ixx86 as ros2 param load YAML, a LinuxCNC comp file, and '
         'a before/after report.')
     ap.add_argument('--axis', default='x')
-    ap.add_argument('--range', type=_range, metavar='LO,HI',
+    ap.add_argument('--range', type=pair, metavar='LO,HI',
                     help='travel to calibrate [m] (default: 0 .. 4 in, inside the soft limits '
                     'less the overtravel)')
     ap.add_argument('--targets', type=int, default=DEFAULT_TARGETS,

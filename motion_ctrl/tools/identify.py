@@ -37,7 +37,7 @@ import numpy as np
 
 from motion_ctrl.analysis import identify as idf
 from motion_ctrl.core import excitation as ex
-from motion_ctrl.tools.calibrate import session_arguments
+from motion_ctrl.tools.calibrate import pair, session_arguments
 
 EXCITATION_REGISTERS = ('excitation_signal', 'excitation_amplitude', 'excitation_band_low',
                         'excitation_band_high', 'excitation_duration', 'excitation_points',
@@ -298,18 +298,13 @@ def format_report(r: dict, ref: dict) -> str:
     return '\n'.join(lines)
 
 
-def _pair(text: str) -> tuple[float, float]:
-    lo, _, hi = text.partition(',')
-    return float(lo), float(hi)
-
-
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog='identify', description='Measure an axis through the running controller (loop '
         'closed, stepped sine on a slow base motion, every servo tick gathered), fit the '
         'two-mass model, print it and write a Bode plot.')
     ap.add_argument('--axis', default='x')
-    ap.add_argument('--band', type=_pair, default=(20.0, 400.0), metavar='LO,HI',
+    ap.add_argument('--band', type=pair, default=(20.0, 400.0), metavar='LO,HI',
                     help='frequency band [Hz] (default 20,400)')
     ap.add_argument('--amplitude', type=float, default=0.05,
                     help='run 1 amplitude [V] (default 0.05)')
