@@ -34,6 +34,7 @@ class SlideClient(Node):
         self.pub_velocity = self.create_publisher(JointState, md.TARGET_VELOCITY, 10)
         self.pub_trajectory = self.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
         self.truth = None          # latest plant_states {joint: position}
+        self.truth_stamp = float('-inf')
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
         # truth=False: a tool that must work against real hardware (calibrate) neither reads
@@ -54,6 +55,12 @@ class SlideClient(Node):
 
     def _on_truth(self, msg):
         self.truth = dict(zip(msg.name, msg.position))
+        self.truth_stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+    def truth_since(self, stamp: float, timeout: float = 2.0) -> bool:
+        """Wait for a plant_states sample stamped at or after `stamp` (s, the plant's clock):
+        the user's copy of a stream can lag a loaded machine (README Notes)."""
+        return self.spin_until(lambda: self.truth_stamp >= stamp, timeout)
 
     def _on_status(self, axis, msg):
         if msg.data != self.status[axis]:

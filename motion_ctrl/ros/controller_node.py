@@ -43,7 +43,7 @@ from trajectory_msgs.msg import JointTrajectory
 from diagnostic_msgs.msg import DiagnosticArray
 
 import msg_defs as md
-from motion_ctrl.ros import ros_env, ros_params
+from motion_ctrl.ros import ros_env, servo_bus, ros_params
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
@@ -435,6 +435,11 @@ def run(node_class, args=None) -> int:
                                   InvalidParameterValueException, ParameterException)
     from rclpy.signals import SignalHandlerOptions
     ros_env.local_discovery()
+    # The loop runs on the servo bus in a process of its own; this one bridges it (issue 11).
+    bridged = servo_bus.supervise(f'motion_ctrl.ros.{node_class.NODE_NAME}_node',
+                                  node_class.NODE_NAME, list(args or sys.argv))
+    if bridged is not None:
+        return bridged
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override

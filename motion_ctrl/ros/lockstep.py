@@ -122,7 +122,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
 
 
 def _with_path(env: dict) -> dict:
-    root = str(pathlib.Path(__file__).resolve().parent.parent)
+    root = str(pathlib.Path(__file__).resolve().parents[2])
     return env | {'PYTHONPATH': os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)}
 
 

@@ -11,7 +11,7 @@ import signal
 import subprocess
 import sys
 
-REPO_PARAMS = pathlib.Path(__file__).resolve().parent.parent / 'params'
+REPO_PARAMS = pathlib.Path(__file__).resolve().parents[2] / 'params'
 
 
 def params_dir() -> pathlib.Path:
@@ -53,7 +53,7 @@ class NodeProcess:
         if env is None:
             # The nodes run the same code as this process (a source tree or an install).
             env = os.environ.copy()
-            root = str(pathlib.Path(__file__).resolve().parent.parent)
+            root = str(pathlib.Path(__file__).resolve().parents[2])
             env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
                                      env=env, preexec_fn=_default_sigint)

@@ -1,0 +1,242 @@
+"""A node's ROS interface mirrored from the servo bus onto the user's domain (motion_ctrl.ros.servo_bus).
+
+The node itself runs in a process of its own on the servo bus's domain, which no ROS tool joins.
+The bridge, in the process the user started, gives the user's domain a node of the same name
+with the same interface, by reading the node's endpoints from the servo bus's graph:
+
+* every topic the node publishes is published under the same name and reliability, its
+  samples copied as bytes (no deserialisation). A latched (transient local) topic keeps its
+  last sample for late joiners; the others are copied only while somebody on the user's
+  domain subscribes (checked every `POLL` s), so a servo stream nobody watches costs nothing;
+* every topic the node subscribes to is copied the other way, except the servo streams
+  (`SERVO_TOPICS`: `encoders`, `command`, `/clock`), which plant and controller exchange on the
+  servo bus only: a second copy would reach the loop late and twice;
+* every service (the parameter services included: `ros2 param get/set/dump/load` work
+  unchanged) is answered by calling the node's service and returning its response.
+
+Of `/rosout` and `/parameter_events`, which the other node on the bus publishes too, only the
+node's own messages are copied out.
+
+A tool that joins the user's domain can hold up this process (Fast DDS shared-memory port
+waits, rclpy holding the GIL while it sends: README Notes), but not the node, which only ever
+talks to the bridges and its peer.
+"""
+from __future__ import annotations
+
+import importlib
+import threading
+import time
+
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+import msg_defs as md
+
+SERVO_TOPICS = frozenset({'/' + md.ENCODERS, '/' + md.COMMAND, md.CLOCK})
+POLL = 0.1                   # s between looks for readers on the user's side
+GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after STARTUP s
+STARTUP = 5.0
+SERVICE_TIMEOUT = 10.0       # s a forwarded request waits for the node's answer
+STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
+COPY_DEPTH = 100             # samples a stream's copy may fall behind (0.1 s at 1 kHz)
+
+
+def interface_type(name: str):
+    """'sensor_msgs/msg/JointState' -> the class; None when not installed here."""
+    pkg, kind, cls = name.split('/')
+    try:
+        return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
+    except (ImportError, AttributeError):
+        return None
+
+
+def outward_qos(info) -> QoSProfile:
+    """The node's publisher QoS for the user's side: same reliability and durability; a
+    latched topic keeps its last sample only (a late joiner wants the current state, and a
+    gather record is one run), a stream a second of samples."""
+    latched = info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    reliable = info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    return QoSProfile(
+        depth=1 if latched else (STREAM_DEPTH if reliable else 10),
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def inward_qos(info) -> QoSProfile:
+    """The node's subscription QoS, for the bridge's subscription on the user's side and its
+    publisher on the servo bus."""
+    return QoSProfile(
+        depth=10,
+        reliability=info.qos_profile.reliability
+        if info.qos_profile.reliability != ReliabilityPolicy.UNKNOWN
+        else ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL
+        if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        else DurabilityPolicy.VOLATILE)
+
+
+def _own_log(bridge: Bridge, msg) -> bool:
+    return msg.name == bridge.logger or msg.name.startswith(bridge.logger + '.')
+
+
+def _own_parameter_event(bridge: Bridge, msg) -> bool:
+    return msg.node == bridge.fqn
+
+
+# Topics every node on the bus publishes: only the bridged node's messages are copied out.
+# (By content: rclpy's EventsExecutor passes no publisher GID.)
+SHARED = {'rcl_interfaces/msg/Log': _own_log,
+          'rcl_interfaces/msg/ParameterEvent': _own_parameter_event}
+
+
+class _Outward:
+    """One topic the node publishes: the user-side publisher, and the servo-side subscription
+    that feeds it while it is wanted (raw bytes; a shared topic's messages filtered)."""
+
+    def __init__(self, bridge: Bridge, topic: str, type_name: str, msg_type, info):
+        self.bridge, self.topic, self.msg_type = bridge, topic, msg_type
+        self.qos = outward_qos(info)
+        self.latched = self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        self.pub = bridge.public.create_publisher(msg_type, topic, self.qos)
+        self.own = SHARED.get(type_name)
+        self.sub = None
+
+    def _copy(self, msg) -> None:
+        if self.own is not None and not self.own(self.bridge, msg):
+            return                   # the other node's
+        try:
+            self.pub.publish(msg)
+        except Exception as e:       # (a reader the middleware gave up on: count, go on)
+            self.bridge.dropped(self.topic, e)
+
+    def refresh(self) -> None:
+        """A latched topic is copied always (on `calls`: a late joiner wants it at once), a
+        stream while it has readers on the user's side (on `servo`). A stream is read best
+        effort with a tenth of a second's queue: the node keeps no history and resends nothing
+        for a bridge; a bridge starved longer than that drops samples instead of falling
+        behind (README Notes)."""
+        wanted = self.latched or self.pub.get_subscription_count() > 0
+        if wanted and self.sub is None:
+            node = self.bridge.calls if self.latched else self.bridge.servo
+            qos = QoSProfile(depth=10, reliability=self.qos.reliability,   # (every change)
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL) if self.latched \
+                else QoSProfile(depth=COPY_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+            self.sub = node.create_subscription(self.msg_type, self.topic, self._copy, qos,
+                                                raw=self.own is None)
+        elif not wanted and self.sub is not None:
+            self.bridge.servo.destroy_subscription(self.sub)
+            self.sub = None
+
+
+class Bridge:
+    """Mirror node `name` in `namespace` of the servo bus (context `servo_ctx`) onto the user's
+    domain (context `public_ctx`). Call `poll()` every POLL s on `servo`'s executor; spin
+    `public`, `servo` and `calls` on executors of their own (a service waits for `calls` on
+    `public`'s, so not on one thread)."""
+
+    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, log=print):
+        self.name, self.namespace = name, namespace
+        self.fqn = namespace.rstrip('/') + '/' + name
+        self.logger = '.'.join([*namespace.strip('/').split('/'), name]).lstrip('.')
+        self.log = log
+        no_services = [Parameter('start_type_description_service', value=False)]
+        self.public = Node(name, namespace=namespace, context=public_ctx,
+                           use_global_arguments=False, start_parameter_services=False,
+                           parameter_overrides=no_services, enable_rosout=False)
+        self.servo = Node(f'_bridge_{name}', namespace=namespace, context=servo_ctx,
+                          use_global_arguments=False, start_parameter_services=False,
+                          parameter_overrides=no_services, enable_rosout=False)
+        # Service clients and latched topics on a node (and executor) of their own: a response
+        # or a status word must not wait behind a queue of stream samples to copy.
+        self.calls = Node(f'_bridge_{name}_calls', namespace=namespace, context=servo_ctx,
+                          use_global_arguments=False, start_parameter_services=False,
+                          parameter_overrides=no_services, enable_rosout=False)
+        self.group = ReentrantCallbackGroup()
+        self.outward: dict[str, _Outward] = {}
+        self.inward: dict[str, tuple] = {}
+        self.services: dict[str, tuple] = {}
+        self.skipped: set[str] = set()
+        self.started = time.monotonic()
+        self.next_look = 0.0
+        self._drop_lock = threading.Lock()
+        self.drops: dict[str, int] = {}
+
+    # -- the graph ----------------------------------------------------------------------------
+    def poll(self) -> None:
+        """Start or stop the copies of the streams as readers come and go; look at the graph
+        for what the node has that is not mirrored yet every GRAPH_POLL s (every POLL s for the
+        first STARTUP s: reading the graph costs more than a copy)."""
+        for out in self.outward.values():
+            out.refresh()
+        now = time.monotonic()
+        if now < self.next_look:
+            return
+        self.next_look = now + (POLL if now < self.started + STARTUP else GRAPH_POLL)
+        self.look()
+
+    def look(self) -> None:
+        """Mirror what the node has that is not mirrored yet."""
+        ns = self.namespace
+        if (self.name, ns) not in self.servo.get_node_names_and_namespaces():
+            return
+        for topic, types in self.servo.get_publisher_names_and_types_by_node(self.name, ns):
+            mine = [i for i in self.servo.get_publishers_info_by_topic(topic)
+                    if i.node_name == self.name and i.node_namespace == ns]
+            if not mine:
+                continue
+            msg_type = None if topic in self.outward else self._type(topic, types)
+            if msg_type is not None:
+                self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
+        for topic, types in self.servo.get_subscriber_names_and_types_by_node(self.name, ns):
+            if topic in self.inward or topic in SERVO_TOPICS:
+                continue
+            mine = [i for i in self.servo.get_subscriptions_info_by_topic(topic)
+                    if i.node_name == self.name and i.node_namespace == ns]
+            msg_type = self._type(topic, types)
+            if msg_type is None or not mine:
+                continue
+            qos = inward_qos(mine[0])
+            out = self.servo.create_publisher(msg_type, topic, qos)
+            sub = self.public.create_subscription(
+                msg_type, topic, lambda data, out=out: out.publish(data), qos, raw=True,
+                callback_group=self.group)
+            self.inward[topic] = (sub, out)
+        for service, types in self.servo.get_service_names_and_types_by_node(self.name, ns):
+            if service in self.services:
+                continue
+            srv_type = self._type(service, types)
+            if srv_type is None:
+                continue
+            client = self.calls.create_client(srv_type, service)
+            server = self.public.create_service(
+                srv_type, service, self._forward(client, service), callback_group=self.group)
+            self.services[service] = (client, server)
+
+    def _type(self, name: str, types: list[str]):
+        t = interface_type(types[0]) if types else None
+        if t is None and name not in self.skipped:
+            self.skipped.add(name)
+            self.log(f'bridge: {name} ({types}) not mirrored: its type is not installed here')
+        return t
+
+    def _forward(self, client, service: str):
+        def answer(request, response):
+            try:
+                return client.call(request, timeout_sec=SERVICE_TIMEOUT)
+            except TimeoutError:
+                self.log(f'bridge: {self.fqn} did not answer {service} within '
+                         f'{SERVICE_TIMEOUT:g} s')
+                return response
+        return answer
+
+    def dropped(self, topic: str, e: Exception) -> None:
+        with self._drop_lock:
+            n = self.drops[topic] = self.drops.get(topic, 0) + 1
+        if n == 1:
+            self.log(f'bridge: {topic}: a sample not passed on ({e}); counting on')
+
+    def destroy(self) -> None:
+        for node in (self.public, self.servo, self.calls):
+            node.destroy_node()

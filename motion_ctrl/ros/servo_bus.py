@@ -1,0 +1,188 @@
+"""The servo bus: plant and controller exchange `encoders` and `command` (and `/clock` in
+lockstep) on a ROS domain of their own that no tool joins; each node's ROS interface is mirrored
+onto the user's domain by a bridge (motion_ctrl.ros.bridge). Issue 11, README Notes.
+
+Why a domain of its own: a participant joining a domain makes every participant there send to
+its shared-memory port, and Fast DDS sends all of a participant's messages under one lock, so a
+newcomer that the scheduler holds off the CPU while it owns its port's mutex stops the sender
+(seen as 50-333 ms holes in both servo streams whenever a `ros2` command ran). rclpy keeps the
+GIL through `publish()` and a service's response, so the loop stalls with any thread of its
+process that sends to a newcomer. The loop therefore runs in a process whose only participant
+is on the servo bus; the process the user started (`controller`, `plant`, `ros2 launch`) holds
+the bridge, and a tool can hold up only that.
+
+MOTION_CTRL_SERVO_DOMAIN chooses the bus: unset, the domain 50 above ROS_DOMAIN_ID (wrapping in
+1..101, as motion_ctrl's own domains do, below Linux's ephemeral ports); a number, that domain
+(plant and controller must agree); `off`, no bus: the node runs on the user's domain itself, for a
+plant of another make that answers on the topics there.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+ENV = 'MOTION_CTRL_SERVO_DOMAIN'
+INSIDE = 'MOTION_CTRL_SERVO_PROCESS'     # set in the node's own process on the bus
+STOP_WAIT = 10.0                         # s the node gets to command 0 V and leave
+# The bridge's DDS threads on the bus run above every normally scheduled thread, so a node at
+# real-time priority never waits on a bridge's shared-memory port whose listener a busy machine
+# left off the CPU holding its lock; its Python threads (the copies, the user's side) do not.
+BUS_THREAD_PRIORITY = 1
+
+
+def servo_domain(environ=os.environ) -> int | None:
+    """The servo bus's domain for this environment, or None for no bus (`off`). Raises
+    ValueError with the reason on a value that is not a domain."""
+    value = environ.get(ENV, '').strip()
+    if value.lower() == 'off':
+        return None
+    user = int(environ.get('ROS_DOMAIN_ID') or 0)
+    if not value:
+        return (user + 50) % 101 + 1
+    if not value.isdigit() or not 0 <= int(value) <= 232:
+        raise ValueError(f'{ENV}={value!r}: a ROS domain id (0..232) or off')
+    if int(value) == user:
+        raise ValueError(f'{ENV}={value}: the servo bus needs a domain of its own, not '
+                         f'ROS_DOMAIN_ID {user}')
+    return int(value)
+
+
+def servo_process_env(domain: int) -> dict:
+    env = os.environ.copy()
+    env['ROS_DOMAIN_ID'] = str(domain)
+    env[INSIDE] = '1'
+    root = str(pathlib.Path(__file__).resolve().parents[2])
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
+    return env
+
+
+def supervise(module: str, name: str, argv: list[str]) -> int | None:
+    """In the process the user started: run node `module` (python -m; default node name
+    `name`) on the servo bus and bridge it here until SIGINT/SIGTERM or until the node ends;
+    returns its exit code. None when there is no servo bus or this is the node's process."""
+    if os.environ.get(INSIDE):
+        return None
+    try:
+        domain = servo_domain()
+    except ValueError as e:
+        print(f'{module}: {e}', file=sys.stderr)
+        return 2
+    if domain is None:
+        return None
+    stop: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda s, _f: stop.append(s))
+    bus = _Bus.open(domain, name, argv)
+    # The bridge's participant is on the bus before the node starts: a participant joining
+    # later would disturb a running loop (why the bus exists).
+    from motion_ctrl.ros.processes import _default_sigint
+    node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
+                            env=servo_process_env(domain), preexec_fn=_default_sigint)
+    try:
+        if bus is not None:
+            bus.run(node, stop)
+    finally:
+        if node.poll() is None:
+            node.send_signal(signal.SIGINT)       # the node commands 0 V and disables first
+            try:                                  # (the bridge still up while it says so)
+                node.wait(STOP_WAIT)
+            except subprocess.TimeoutExpired:
+                node.kill()
+                node.wait()
+        if bus is not None:
+            bus.close()
+    rc = node.returncode
+    return rc if rc >= 0 else 128 - rc
+
+
+@contextlib.contextmanager
+def _realtime_threads(priority: int):
+    """Threads started meanwhile (the DDS threads of a participant made then) run SCHED_FIFO at
+    `priority`; the calling thread goes back to its own scheduling after. Where that is not
+    allowed, nothing changes."""
+    try:
+        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
+
+
+class _Bus:
+    """The bridge and its executors, spinning on threads of their own."""
+
+    @classmethod
+    def open(cls, domain: int, default_name: str, argv: list[str]) -> _Bus | None:
+        """None when the arguments do not parse (the node then says why and exits 2)."""
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.node import Node
+        public_ctx = Context()
+        try:
+            rclpy.init(args=argv, context=public_ctx)
+        except RuntimeError:
+            return None
+        # The node's name and namespace as its remappings make them (a launch file's name=).
+        probe = Node(default_name, context=public_ctx, start_parameter_services=False,
+                     enable_rosout=False)
+        name, namespace = probe.get_name(), probe.get_namespace()
+        probe.destroy_node()
+        servo_ctx = Context()
+        rclpy.init(context=servo_ctx, domain_id=domain)
+        return cls(name, namespace, public_ctx, servo_ctx)
+
+    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx):
+        from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+
+        from motion_ctrl.ros import ros_env
+
+        from motion_ctrl.ros.bridge import POLL, Bridge
+        self.contexts = (public_ctx, servo_ctx)
+        with _realtime_threads(BUS_THREAD_PRIORITY):     # (the participant comes with a node)
+            self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
+                f'[{name}] {m}', file=sys.stderr, flush=True))
+        # The servo side copies every watched stream sample: the lighter executor (ros_env).
+        self.executors = [ros_env.executor(servo_ctx), SingleThreadedExecutor(context=servo_ctx),
+                          MultiThreadedExecutor(num_threads=4, context=public_ctx)]
+        # The bridge looks at the graph on the servo side's thread: rclpy entities are made and
+        # destroyed safely only on the thread of the executor that waits on them.
+        self.bridge.servo.create_timer(POLL, self.bridge.poll)
+        for executor, node in zip(self.executors, (self.bridge.servo, self.bridge.calls,
+                                                    self.bridge.public)):
+            executor.add_node(node)
+        self.running = True
+        self.threads = [threading.Thread(target=self._spin, args=(e,), daemon=True)
+                        for e in self.executors]
+        for t in self.threads:
+            t.start()
+
+    def run(self, node: subprocess.Popen, stop: list) -> None:
+        while not stop and node.poll() is None:
+            time.sleep(0.1)
+
+    def _spin(self, executor) -> None:
+        # (spin_once: EventsExecutor.spin() busy-waits in rclpy 9.1, ros_env says so)
+        while self.running:
+            executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        import rclpy
+        self.running = False         # the threads leave their executors before these go
+        for t in self.threads:
+            t.join(2.0)
+        for e in self.executors:
+            e.shutdown(timeout_sec=1.0)
+        self.bridge.destroy()
+        for ctx in self.contexts:
+            rclpy.try_shutdown(context=ctx)
+
