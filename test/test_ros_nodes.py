@@ -73,7 +73,6 @@ class Probe(SlideClient):
             md.SERVO_QOS)
         self.create_subscription(DiagnosticArray, md.DIAGNOSTICS,
                                  lambda m: self.diag.append((time.monotonic(), m)), 10)
-        self.pub_encoders = self.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
         self.params = AsyncParameterClient(self, 'controller')
         self.plant_params = AsyncParameterClient(self, 'plant')
 
@@ -870,9 +869,24 @@ def test_a_flood_of_bad_targets_is_logged_once_a_second(slide, axis, case):
     p.assert_loop_running()
 
 
-def test_malformed_encoders_do_not_kill_the_controller(slide, axis):
+@pytest.fixture
+def bus_encoders():
+    """A publisher of `encoders` on the servo bus (motion_ctrl.ros.servo_bus), where the
+    controller reads them: a second plant, as a faulty encoder interface would be."""
+    import rclpy
+    from rclpy.context import Context
+    from motion_ctrl.ros import servo_bus
+    context = Context()
+    rclpy.init(context=context, domain_id=servo_bus.servo_domain())
+    node = rclpy.create_node('test_bad_encoders', context=context)
+    yield node.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def test_malformed_encoders_do_not_kill_the_controller(slide, axis, bus_encoders):
     p = axis
-    assert p.spin_until(lambda: p.pub_encoders.get_subscription_count() > 0, 5.0)
+    assert p.spin_until(lambda: bus_encoders.get_subscription_count() > 0, 5.0)
     stamp = p.get_clock().now().to_msg()
     bad = [
         md.joint_state(stamp, ['x_motor', 'x_load'], [1.0]),           # length mismatch
@@ -885,7 +899,7 @@ def test_malformed_encoders_do_not_kill_the_controller(slide, axis):
     ]
     mark = p.mark()
     for msg in bad:
-        p.pub_encoders.publish(msg)
+        bus_encoders.publish(msg)
     assert wait_log(p, slide.controller_log, 'encoders ignored', 1)
     p.assert_loop_running()
     assert slide.controller.proc.poll() is None

@@ -1,4 +1,4 @@
-"""A node's ROS interface mirrored from the servo bus onto the user's domain (motion_ctrl.ros.servo_bus).
+"""A node's ROS interface mirrored from the servo bus onto the user's domain (ros.servo_bus).
 
 The node itself runs in a process of its own on the servo bus's domain, which no ROS tool joins.
 The bridge, in the process the user started, gives the user's domain a node of the same name
@@ -28,9 +28,11 @@ import threading
 import time
 
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.client import Client
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 
 import msg_defs as md
 
@@ -40,7 +42,6 @@ GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after ST
 STARTUP = 5.0
 SERVICE_TIMEOUT = 10.0       # s a forwarded request waits for the node's answer
 STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
-COPY_DEPTH = 100             # samples a stream's copy may fall behind (0.1 s at 1 kHz)
 
 
 def interface_type(name: str):
@@ -101,7 +102,7 @@ class _Outward:
         self.latched = self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
         self.pub = bridge.public.create_publisher(msg_type, topic, self.qos)
         self.own = SHARED.get(type_name)
-        self.sub = None
+        self.sub: Subscription | None = None
 
     def _copy(self, msg) -> None:
         if self.own is not None and not self.own(self.bridge, msg):
@@ -112,19 +113,17 @@ class _Outward:
             self.bridge.dropped(self.topic, e)
 
     def refresh(self) -> None:
-        """A latched topic is copied always (on `calls`: a late joiner wants it at once), a
-        stream while it has readers on the user's side (on `servo`). A stream is read best
-        effort with a tenth of a second's queue: the node keeps no history and resends nothing
-        for a bridge; a bridge starved longer than that drops samples instead of falling
-        behind (README Notes)."""
+        """A latched topic is copied always (a late joiner wants it at once), a stream while
+        it has readers on the user's side; read as the node publishes it (a recording through
+        the bridge loses nothing the node's history of a second still holds) and all on one
+        thread, so that a recording has the status words in order with the streams."""
         wanted = self.latched or self.pub.get_subscription_count() > 0
         if wanted and self.sub is None:
-            node = self.bridge.calls if self.latched else self.bridge.servo
-            qos = QoSProfile(depth=10, reliability=self.qos.reliability,   # (every change)
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL) if self.latched \
-                else QoSProfile(depth=COPY_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
-            self.sub = node.create_subscription(self.msg_type, self.topic, self._copy, qos,
-                                                raw=self.own is None)
+            # (a latched topic's every change: a status word's MOTION_DONE cleared and raised)
+            qos = QoSProfile(depth=10 if self.latched else self.qos.depth,
+                             reliability=self.qos.reliability, durability=self.qos.durability)
+            self.sub = self.bridge.servo.create_subscription(
+                self.msg_type, self.topic, self._copy, qos, raw=self.own is None)
         elif not wanted and self.sub is not None:
             self.bridge.servo.destroy_subscription(self.sub)
             self.sub = None
@@ -148,15 +147,15 @@ class Bridge:
         self.servo = Node(f'_bridge_{name}', namespace=namespace, context=servo_ctx,
                           use_global_arguments=False, start_parameter_services=False,
                           parameter_overrides=no_services, enable_rosout=False)
-        # Service clients and latched topics on a node (and executor) of their own: a response
-        # or a status word must not wait behind a queue of stream samples to copy.
+        # The service clients on a node (and executor) of their own: a response must not wait
+        # behind a queue of stream samples to copy.
         self.calls = Node(f'_bridge_{name}_calls', namespace=namespace, context=servo_ctx,
                           use_global_arguments=False, start_parameter_services=False,
                           parameter_overrides=no_services, enable_rosout=False)
         self.group = ReentrantCallbackGroup()
         self.outward: dict[str, _Outward] = {}
-        self.inward: dict[str, tuple] = {}
-        self.services: dict[str, tuple] = {}
+        self.inward: dict[str, tuple] = {}       # topic -> (subscription, publisher)
+        self.services: dict[str, tuple] = {}     # service -> (client, server)
         self.skipped: set[str] = set()
         self.started = time.monotonic()
         self.next_look = 0.0
@@ -209,7 +208,7 @@ class Bridge:
             srv_type = self._type(service, types)
             if srv_type is None:
                 continue
-            client = self.calls.create_client(srv_type, service)
+            client: Client = self.calls.create_client(srv_type, service)
             server = self.public.create_service(
                 srv_type, service, self._forward(client, service), callback_group=self.group)
             self.services[service] = (client, server)

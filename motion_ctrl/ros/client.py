@@ -35,6 +35,7 @@ class SlideClient(Node):
         self.pub_trajectory = self.create_publisher(JointTrajectory, md.JOINT_TRAJECTORY, 10)
         self.truth = None          # latest plant_states {joint: position}
         self.truth_stamp = float('-inf')
+        self.done_at = float('-inf')  # wall time this client last saw MOTION_DONE raised
         self.status = {a: None for a in self.axes}
         self.status_log = {a: [] for a in self.axes}     # (monotonic time, word)
         # truth=False: a tool that must work against real hardware (calibrate) neither reads
@@ -65,6 +66,8 @@ class SlideClient(Node):
     def _on_status(self, axis, msg):
         if msg.data != self.status[axis]:
             self.status_log[axis].append((time.monotonic(), msg.data))
+            if msg.data & Status.MOTION_DONE:
+                self.done_at = time.time()
         self.status[axis] = msg.data
 
     def spin_until(self, predicate, timeout: float) -> bool:
@@ -176,4 +179,7 @@ class SlideClient(Node):
         return last - t0
 
     def load_position(self, axis='x') -> float:
+        """The true slide position, from a plant_states sample stamped after the last
+        MOTION_DONE this client saw (waits up to 2 s for one)."""
+        self.truth_since(self.done_at)
         return self.truth[md.load_joint(axis)]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -62,6 +63,23 @@ def servo_process_env(domain: int) -> dict:
     return env
 
 
+_REMAP = re.compile(r'^(?:[^:=]+:)?__(node|name|ns):=(.+)$')
+
+
+def node_name(default: str, argv: list[str]) -> tuple[str, str]:
+    """The node's name and namespace as the remappings in `argv` make them (`-r __node:=`,
+    `-r __ns:=`, as a launch file's name= and namespace= pass them); the node itself judges
+    its arguments and says what is wrong with them."""
+    name, namespace = default, '/'
+    for flag, rule in zip(argv, argv[1:]):
+        m = _REMAP.match(rule) if flag in ('-r', '--remap') else None
+        if m and m.group(1) == 'ns':
+            namespace = '/' + m.group(2).strip('/')
+        elif m:
+            name = m.group(2)
+    return name, namespace
+
+
 def supervise(module: str, name: str, argv: list[str]) -> int | None:
     """In the process the user started: run node `module` (python -m; default node name
     `name`) on the servo bus and bridge it here until SIGINT/SIGTERM or until the node ends;
@@ -78,15 +96,14 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     stop: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, _f: stop.append(s))
-    bus = _Bus.open(domain, name, argv)
+    bus = _Bus.open(domain, *node_name(name, argv))
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
     from motion_ctrl.ros.processes import _default_sigint
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
                             env=servo_process_env(domain), preexec_fn=_default_sigint)
     try:
-        if bus is not None:
-            bus.run(node, stop)
+        bus.run(node, stop)
     finally:
         if node.poll() is None:
             node.send_signal(signal.SIGINT)       # the node commands 0 V and disables first
@@ -95,8 +112,7 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
             except subprocess.TimeoutExpired:
                 node.kill()
                 node.wait()
-        if bus is not None:
-            bus.close()
+        bus.close()
     rc = node.returncode
     return rc if rc >= 0 else 128 - rc
 
@@ -122,23 +138,12 @@ class _Bus:
     """The bridge and its executors, spinning on threads of their own."""
 
     @classmethod
-    def open(cls, domain: int, default_name: str, argv: list[str]) -> _Bus | None:
-        """None when the arguments do not parse (the node then says why and exits 2)."""
+    def open(cls, domain: int, name: str, namespace: str) -> _Bus:
         import rclpy
         from rclpy.context import Context
-        from rclpy.node import Node
-        public_ctx = Context()
-        try:
-            rclpy.init(args=argv, context=public_ctx)
-        except RuntimeError:
-            return None
-        # The node's name and namespace as its remappings make them (a launch file's name=).
-        probe = Node(default_name, context=public_ctx, start_parameter_services=False,
-                     enable_rosout=False)
-        name, namespace = probe.get_name(), probe.get_namespace()
-        probe.destroy_node()
-        servo_ctx = Context()
-        rclpy.init(context=servo_ctx, domain_id=domain)
+        public_ctx, servo_ctx = Context(), Context()
+        rclpy.init(args=[], context=public_ctx)
+        rclpy.init(args=[], context=servo_ctx, domain_id=domain)
         return cls(name, namespace, public_ctx, servo_ctx)
 
     def __init__(self, name: str, namespace: str, public_ctx, servo_ctx):

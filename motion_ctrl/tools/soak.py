@@ -112,7 +112,6 @@ class Soak:
                 self.faults.append(f'reset / enable unanswered ({e})')
             c.spin_until(lambda: False, 0.2)
             return
-        c.truth_since(time.time())                # the slide's truth after MOTION_DONE
         err = (c.load_position(self.axis) - self.target) * LOAD_COUNTS_PER_M
         self.errors.append(err)
         self.within_1_count += abs(err) <= 1.0
