@@ -10,6 +10,7 @@ controller then takes the axis over: reset + enable and a 1-inch move land withi
 """
 from __future__ import annotations
 
+import os
 import signal
 import time
 from typing import cast
@@ -184,7 +185,7 @@ def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
     client = slide.client
     _cruise(client)
     t_stop = time.time()                          # ROS time in real time: the stamps' clock
-    slide.controller.proc.send_signal(signal.SIGKILL)
+    os.kill(slide.controller.servo_pid(), signal.SIGKILL)     # the servo loop's own process
     m = _after_stop(client, t_stop)
     assert client.fault is True
     _check(m)
@@ -211,3 +212,34 @@ def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
     error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
     assert abs(error) <= 1.0
+
+
+def test_sigkill_of_the_process_started_kills_the_loop_cleanly(slide):
+    """SIGKILL of the process the user started (the bridge, ros.servo_bus): the kernel tells the
+    servo loop's process (PR_SET_PDEATHSIG), which opens the loop and commands 0 V before it
+    goes, as on SIGINT: no amplifier is left on its last command."""
+    client = slide.client
+    servo = slide.controller.servo_pid()
+    assert servo != slide.controller.proc.pid, 'no servo bus: the loop runs in the killed process'
+    _cruise(client)
+    t_stop = time.time()
+    slide.controller.proc.send_signal(signal.SIGKILL)
+    m = _after_stop(client, t_stop)
+    _wait_gone(servo)
+    # (its 0 V went to the plant on the bus; the killed bridge no longer copies `command` out)
+    assert 'loops opened, 0 V commanded' in slide.log('controller')
+    _check(m)
+    error = _restart_and_move(slide)
+    print(f'after restart: slide {error:+.2f} counts from the target')
+    assert abs(error) <= 1.0
+
+
+def _wait_gone(pid: int, timeout: float = 10.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f'process {pid} still there {timeout} s after its parent died')

@@ -39,7 +39,7 @@ import msg_defs as md
 SERVO_TOPICS = frozenset({'/' + md.ENCODERS, '/' + md.COMMAND, md.CLOCK})
 POLL = 0.1                   # s between looks for readers on the user's side
 GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after STARTUP s
-STARTUP = 5.0
+STARTUP, STARTUP_POLL = 5.0, 0.25   # s: the node's endpoints appear over its first seconds
 SERVICE_TIMEOUT = 10.0       # s a forwarded request waits for the node's answer
 STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
 
@@ -172,7 +172,7 @@ class Bridge:
         now = time.monotonic()
         if now < self.next_look:
             return
-        self.next_look = now + (POLL if now < self.started + STARTUP else GRAPH_POLL)
+        self.next_look = now + (STARTUP_POLL if now < self.started + STARTUP else GRAPH_POLL)
         self.look()
 
     def look(self) -> None:
@@ -181,12 +181,12 @@ class Bridge:
         if (self.name, ns) not in self.servo.get_node_names_and_namespaces():
             return
         for topic, types in self.servo.get_publisher_names_and_types_by_node(self.name, ns):
+            if topic in self.outward:
+                continue
             mine = [i for i in self.servo.get_publishers_info_by_topic(topic)
                     if i.node_name == self.name and i.node_namespace == ns]
-            if not mine:
-                continue
-            msg_type = None if topic in self.outward else self._type(topic, types)
-            if msg_type is not None:
+            msg_type = self._type(topic, types)
+            if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
         for topic, types in self.servo.get_subscriber_names_and_types_by_node(self.name, ns):
             if topic in self.inward or topic in SERVO_TOPICS:

@@ -58,6 +58,16 @@ class NodeProcess:
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
                                      env=env, preexec_fn=_default_sigint)
 
+    def servo_pid(self) -> int:
+        """The pid of the node itself: its process on the servo bus (ros.servo_bus), a child
+        of this one; this one's pid when there is no bus."""
+        try:
+            with open(f'/proc/{self.proc.pid}/task/{self.proc.pid}/children') as f:
+                children = [int(c) for c in f.read().split()]
+        except OSError:
+            children = []
+        return children[0] if children else self.proc.pid
+
     def stop(self, timeout: float = 5.0) -> int:
         """SIGINT, wait; SIGKILL only if it does not stop. Returns the exit code."""
         if self.proc.poll() is None:

@@ -94,14 +94,23 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     if domain is None:
         return None
     stop: list[int] = []
+    started: list[subprocess.Popen] = []
+
+    def on_signal(sig, _frame):
+        stop.append(sig)
+        for node in started:         # at once: a Ctrl-C mid-move commands 0 V now
+            node.send_signal(signal.SIGINT)
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda s, _f: stop.append(s))
+        signal.signal(sig, on_signal)
     bus = _Bus.open(domain, *node_name(name, argv))
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
     from motion_ctrl.ros.processes import _default_sigint
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
                             env=servo_process_env(domain), preexec_fn=_default_sigint)
+    started.append(node)
+    if stop:
+        node.send_signal(signal.SIGINT)
     try:
         bus.run(node, stop)
     finally:
