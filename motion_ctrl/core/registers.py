@@ -145,11 +145,13 @@ def _r(*args, **kw) -> Register:
 
 # Both nodes: the scheduling of the servo process (ros_env.realtime applies it).
 REALTIME_PRIORITY = _r(
-    'realtime_priority', 'integer', 30, '',
-    'SCHED_FIFO priority of every thread of the node\'s servo process (the loop and its DDS '
-    'threads); 0: normal scheduling, where the CPU load of a busy machine holds the 1 kHz '
-    'streams past feedback_timeout now and then (README, Notes). Needs CAP_SYS_NICE or an rtprio '
-    'limit (ulimit -r); without it the node warns and runs at normal priority.',
+    'realtime_priority', 'integer', 0, '',
+    'SCHED_FIFO priority of every thread of the node (the servo loop and its DDS threads); 0: '
+    'normal scheduling. At normal priority CPU load, and ROS tools joining the graph (a Fast DDS '
+    'shared-memory health check, eProsima/Fast-DDS#6535), now and then hold the servo streams '
+    'for 333 ms, past feedback_timeout; 30 removed that in the measurements (README, Notes). '
+    'Needs CAP_SYS_NICE or an rtprio limit (ulimit -r); without it the node warns and runs at '
+    'normal priority.',
     'LinuxCNC servo-thread, PMAC real-time interrupt', min=0, max=98, read_only=True)
 
 # Controller-wide parameters (not per axis).

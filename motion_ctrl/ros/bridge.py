@@ -173,7 +173,11 @@ class Bridge:
         if now < self.next_look:
             return
         self.next_look = now + (STARTUP_POLL if now < self.started + STARTUP else GRAPH_POLL)
-        self.look()
+        try:
+            self.look()
+        except Exception as e:       # (the node went between two graph queries: look again)
+            if 'nonexistent node' not in str(e):
+                self.log(f'bridge: reading the graph failed: {e!r}')
 
     def look(self) -> None:
         """Mirror what the node has that is not mirrored yet."""

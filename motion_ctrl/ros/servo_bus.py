@@ -115,7 +115,8 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         bus.run(node, stop)
     finally:
         if node.poll() is None:
-            node.send_signal(signal.SIGINT)       # the node commands 0 V and disables first
+            if not stop:                          # (on a signal, on_signal sent it: once)
+                node.send_signal(signal.SIGINT)   # the node commands 0 V and disables first
             try:                                  # (the bridge still up while it says so)
                 node.wait(STOP_WAIT)
             except subprocess.TimeoutExpired:

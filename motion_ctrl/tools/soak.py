@@ -3,11 +3,11 @@ participants joining and leaving (`motion_ctrl.ros.visitor`, like `ros2 param ge
 echo`), optionally a recorder started and stopped and a busy CPU loop beside it.
 
 `scripts/soak [--minutes 10] [--interval 5] [--busy 1] [--realtime-priority 30]` runs it with
-the shipped parameters (and the nodes at real-time priority unless told 0) and
-prints the count of moves, of faults (FEEDBACK_FAULT, FOLLOWING_ERROR_FATAL), of moves that end
-within 1 linear count on the true slide, the longest encoder wait the controller saw, and the RSS
-of both nodes at start and end. The churn test (test/test_ros_churn.py) drives the same
-`Soak` with 50 visitors and a recorder.
+the shipped parameters and prints the count of moves, of faults (FEEDBACK_FAULT,
+FOLLOWING_ERROR_FATAL), of moves that end within 1 linear count on the true slide, and the RSS
+of both nodes' processes (the loop on the servo bus, the bridge) after WARM_UP_MOVES and at the
+end. The churn test (test/test_ros_churn.py) drives the same `Soak` with 50 visitors and a
+recorder.
 """
 from __future__ import annotations
 
@@ -23,6 +23,9 @@ from motion_ctrl.ros import ros_env
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
 
 BUSY_LOOP = 'while True: pass'
+
+
+WARM_UP_MOVES = 4
 
 
 def rss_kb(pid: int) -> int:
@@ -205,8 +208,13 @@ def main(argv=None) -> int:
         if not client.wait_ready(30.0):
             print(f'soak: the nodes did not come up ({client.not_ready()})', file=sys.stderr)
             return 1
-        rss0 = [rss_kb(n.proc.pid) for n in nodes]
         soak = Soak(client)
+        for _ in range(WARM_UP_MOVES):   # (the streams' histories fill during the first moves)
+            soak.move()
+        processes = [(f'{name} {part}', pid) for name, n in zip(('plant', 'controller'), nodes)
+                     for part, pid in (('loop', n.servo_pid()), ('bridge', n.proc.pid))
+                     if part == 'loop' or pid != n.servo_pid()]
+        rss0 = [rss_kb(pid) for _, pid in processes]
         visitors = Visitors(a.interval, a.visitors, a.parallel).start()
         end = time.monotonic() + 60.0 * a.minutes
         while (not visitors.done() if a.visitors else time.monotonic() < end):
@@ -215,7 +223,7 @@ def main(argv=None) -> int:
                 recorder = _record_between(recorder, visitors, out / 'bag')
         soak.move()
         visitors.stop()
-        rss1 = [rss_kb(n.proc.pid) for n in nodes]
+        rss1 = [rss_kb(pid) for _, pid in processes]
     finally:
         if visitors is not None and not visitors.done():
             visitors.stop()
@@ -230,7 +238,7 @@ def main(argv=None) -> int:
     print(f'soak: {soak.summary()}; visitors {visitors.finished} '
           f'({len(visitors.failed)} failed); FEEDBACK_FAULT lines in the controller log: '
           f'{log.count("FEEDBACK_FAULT")}')
-    for name, r0, r1 in zip(('plant', 'controller'), rss0, rss1):
+    for (name, _), r0, r1 in zip(processes, rss0, rss1):
         print(f'soak: {name} RSS {r0} kB -> {r1} kB ({100.0 * (r1 - r0) / r0:+.1f} %)')
     print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
     for f in soak.faults:
