@@ -214,10 +214,20 @@ def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
     assert abs(error) <= 1.0
 
 
-def test_sigkill_of_the_process_started_kills_the_loop_cleanly(slide):
+@pytest.fixture
+def bus_slide(own_domain, tmp_path, monkeypatch):
+    """`slide` with the nodes on a servo bus (MOTION_CTRL_SERVO_DOMAIN=auto)."""
+    monkeypatch.setenv('MOTION_CTRL_SERVO_DOMAIN', 'auto')
+    with running_slide(tmp_path, lambda: Recorder(own_domain), client_first=True) as s:
+        _enable(s.client)
+        yield s
+
+
+def test_sigkill_of_the_process_started_kills_the_loop_cleanly(bus_slide):
     """SIGKILL of the process the user started (the bridge, ros.servo_bus): the kernel tells the
     servo loop's process (PR_SET_PDEATHSIG), which opens the loop and commands 0 V before it
     goes, as on SIGINT: no amplifier is left on its last command."""
+    slide = bus_slide
     client = slide.client
     servo = slide.controller.servo_pid()
     assert servo != slide.controller.proc.pid, 'no servo bus: the loop runs in the killed process'

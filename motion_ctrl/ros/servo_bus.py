@@ -11,10 +11,11 @@ process that sends to a newcomer. The loop therefore runs in a process whose onl
 is on the servo bus; the process the user started (`controller`, `plant`, `ros2 launch`) holds
 the bridge, and a tool can hold up only that.
 
-MOTION_CTRL_SERVO_DOMAIN chooses the bus: unset, the domain 50 above ROS_DOMAIN_ID (wrapping in
+MOTION_CTRL_SERVO_DOMAIN chooses the bus: `auto`, the domain 50 above ROS_DOMAIN_ID (wrapping in
 1..101, as motion_ctrl's own domains do, below Linux's ephemeral ports); a number, that domain
-(plant and controller must agree); `off`, no bus: the node runs on the user's domain itself, for a
-plant of another make that answers on the topics there.
+(plant and controller must agree); unset or `off`, no bus: the node runs on the user's domain
+itself, as a plant of another make that answers on the topics there needs. Opt-in for now
+(README Notes: on two loaded cores the bridges' copies of the streams fall behind).
 """
 from __future__ import annotations
 
@@ -40,14 +41,14 @@ BUS_THREAD_PRIORITY = 1
 def servo_domain(environ=os.environ) -> int | None:
     """The servo bus's domain for this environment, or None for no bus (`off`). Raises
     ValueError with the reason on a value that is not a domain."""
-    value = environ.get(ENV, '').strip()
-    if value.lower() == 'off':
+    value = environ.get(ENV, '').strip().lower()
+    if value in ('', 'off'):
         return None
     user = int(environ.get('ROS_DOMAIN_ID') or 0)
-    if not value:
+    if value == 'auto':
         return (user + 50) % 101 + 1
     if not value.isdigit() or not 0 <= int(value) <= 232:
-        raise ValueError(f'{ENV}={value!r}: a ROS domain id (0..232) or off')
+        raise ValueError(f'{ENV}={value!r}: a ROS domain id (0..232), auto or off')
     if int(value) == user:
         raise ValueError(f'{ENV}={value}: the servo bus needs a domain of its own, not '
                          f'ROS_DOMAIN_ID {user}')

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import pathlib
 import subprocess
 import sys
@@ -177,6 +178,9 @@ def main(argv=None) -> int:
     ap.add_argument('--interval', type=float, default=5.0,
                     help='seconds between visitors (new ROS participants)')
     ap.add_argument('--busy', type=int, default=1, help='busy CPU loops beside the nodes')
+    ap.add_argument('--servo-bus', default='auto',
+                    help='MOTION_CTRL_SERVO_DOMAIN for both nodes: auto (the servo bus, '
+                         'README), a domain id, or off')
     ap.add_argument('--realtime-priority', type=int, default=30,
                     help='realtime_priority of both nodes (0: normal scheduling)')
     ap.add_argument('--visitors', type=int, default=None,
@@ -194,9 +198,10 @@ def main(argv=None) -> int:
     out = pathlib.Path(a.out or datetime.datetime.now().strftime('out/soak-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
     print(f'soak: {a.minutes:g} min of 1-inch moves, a visitor every {a.interval:g} s, '
-          f'{a.busy} busy loop(s), realtime_priority {a.realtime_priority} '
-          f'(ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
+          f'{a.busy} busy loop(s), realtime_priority {a.realtime_priority}, servo bus '
+          f'{a.servo_bus} (ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
     rt = {'realtime_priority': a.realtime_priority}
+    os.environ['MOTION_CTRL_SERVO_DOMAIN'] = a.servo_bus
     nodes = start_slide(rt, rt, log_dir=out)
     busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(a.busy)]
     rclpy.init()
