@@ -12,6 +12,13 @@ import pytest
 import yaml
 
 
+# Built on identify of the default slide, which is not reliable yet (test_ros_identify's
+# default case is an XFAIL for that): two fresh-clone CI runs of 2026-11-23 measured a model
+# with 2.5 dB gain margin (usual 6.8) and then no gains met the preset, or the verification
+# settled 881 ms against 731. Issue 14 stays open on it.
+@pytest.mark.xfail(reason='identify of the default slide is not reliable yet (issue 14): now '
+                          'and then the measured model is off and the proposal with it',
+                   strict=False)
 @pytest.mark.timeout(240)
 def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
