@@ -27,6 +27,7 @@ its own so the servo tick only hands it over.
 from __future__ import annotations
 
 import math
+import os
 import queue
 import signal
 import threading
@@ -461,8 +462,15 @@ def run(node_class, args=None) -> int:
         msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
         where = ros_params.where_from(msg, argv)
         print(f'{node_class.__name__}: bad parameter{f" (from {where})" if where else ""}: '
-              f'{msg}', file=sys.stderr)
-        rclpy.try_shutdown()
+              f'{msg}', file=sys.stderr, flush=True)
+        # Fix: the context's shutdown destroys the half-built node, and rclpy waits for its
+        # handle to be free; once in a CI run that wait never ended (a plant with an unknown
+        # axis, busy in Node.destroy_node for minutes). Give it 2 s, then leave.
+        closing = threading.Thread(target=rclpy.try_shutdown, daemon=True)
+        closing.start()
+        closing.join(2.0)
+        if closing.is_alive():
+            os._exit(2)
         return 2
     problem = ros_env.realtime(node.get_parameter('realtime_priority').value)
     if problem:
