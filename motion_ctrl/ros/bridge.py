@@ -24,7 +24,6 @@ talks to the bridges and its peer.
 from __future__ import annotations
 
 import importlib
-import threading
 import time
 
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -140,27 +139,24 @@ class Bridge:
         self.fqn = namespace.rstrip('/') + '/' + name
         self.logger = '.'.join([*namespace.strip('/').split('/'), name]).lstrip('.')
         self.log = log
-        no_services = [Parameter('start_type_description_service', value=False)]
-        self.public = Node(name, namespace=namespace, context=public_ctx,
-                           use_global_arguments=False, start_parameter_services=False,
-                           parameter_overrides=no_services, enable_rosout=False)
-        self.servo = Node(f'_bridge_{name}', namespace=namespace, context=servo_ctx,
-                          use_global_arguments=False, start_parameter_services=False,
-                          parameter_overrides=no_services, enable_rosout=False)
+        def node(node_name, context):     # none of its own parameters, services or log
+            return Node(node_name, namespace=namespace, context=context,
+                        use_global_arguments=False, start_parameter_services=False,
+                        enable_rosout=False, parameter_overrides=[
+                            Parameter('start_type_description_service', value=False)])
+        self.public = node(name, public_ctx)
+        self.servo = node(f'_bridge_{name}', servo_ctx)
         # The service clients on a node (and executor) of their own: a response must not wait
         # behind a queue of stream samples to copy.
-        self.calls = Node(f'_bridge_{name}_calls', namespace=namespace, context=servo_ctx,
-                          use_global_arguments=False, start_parameter_services=False,
-                          parameter_overrides=no_services, enable_rosout=False)
+        self.calls = node(f'_bridge_{name}_calls', servo_ctx)
         self.group = ReentrantCallbackGroup()
         self.outward: dict[str, _Outward] = {}
-        self.inward: dict[str, tuple] = {}       # topic -> (subscription, publisher)
-        self.services: dict[str, tuple] = {}     # service -> (client, server)
-        self.skipped: set[str] = set()
+        self.inward: set[str] = set()            # topics copied in
+        self.services: set[str] = set()          # services answered
+        self.skipped: set[str] = set()           # names whose type is not installed here
+        self.dropping: set[str] = set()          # topics that lost a sample (logged once)
         self.started = time.monotonic()
         self.next_look = 0.0
-        self._drop_lock = threading.Lock()
-        self.drops: dict[str, int] = {}
 
     # -- the graph ----------------------------------------------------------------------------
     def poll(self) -> None:
@@ -202,10 +198,10 @@ class Bridge:
                 continue
             qos = inward_qos(mine[0])
             out = self.servo.create_publisher(msg_type, topic, qos)
-            sub = self.public.create_subscription(
+            self.public.create_subscription(
                 msg_type, topic, lambda data, out=out: out.publish(data), qos, raw=True,
                 callback_group=self.group)
-            self.inward[topic] = (sub, out)
+            self.inward.add(topic)
         for service, types in self.servo.get_service_names_and_types_by_node(self.name, ns):
             if service in self.services:
                 continue
@@ -213,9 +209,9 @@ class Bridge:
             if srv_type is None:
                 continue
             client: Client = self.calls.create_client(srv_type, service)
-            server = self.public.create_service(
+            self.public.create_service(
                 srv_type, service, self._forward(client, service), callback_group=self.group)
-            self.services[service] = (client, server)
+            self.services.add(service)
 
     def _type(self, name: str, types: list[str]):
         t = interface_type(types[0]) if types else None
@@ -235,10 +231,9 @@ class Bridge:
         return answer
 
     def dropped(self, topic: str, e: Exception) -> None:
-        with self._drop_lock:
-            n = self.drops[topic] = self.drops.get(topic, 0) + 1
-        if n == 1:
-            self.log(f'bridge: {topic}: a sample not passed on ({e}); counting on')
+        if topic not in self.dropping:   # (one thread copies out: no lock)
+            self.dropping.add(topic)
+            self.log(f'bridge: {topic}: a sample not passed on ({e}); later ones not logged')
 
     def destroy(self) -> None:
         for node in (self.public, self.servo, self.calls):

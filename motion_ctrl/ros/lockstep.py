@@ -85,7 +85,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     # the plant: the sim runs as soon as plant and controller have found each other (the
     # plant resends t = 0 until then); this observer usually sees it from the first samples.
     controller = NodeProcess('controller_node', d / 'controller.yaml', {'use_sim_time': 'true'},
-                             log('controller'), env=_with_path(env))
+                             log('controller'), env=env)
     try:
         if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
             raise RuntimeError('controller not discovered')
@@ -95,7 +95,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
         pub_target.publish(md.joint_state(stamp, ['x'], [target]))
         spin_until(lambda: False, 0.2)
         plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
-                            env=_with_path(env))
+                            env=env)
         if not spin_until(lambda: raw, 30.0):
             raise RuntimeError('lockstep plant not discovered')
         if not spin_until(lambda: sim_time() >= end, timeout):
@@ -119,11 +119,6 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     speed = ((moving[-1][1] - moving[0][1]) / (moving[-1][0] - moving[0][0])
              if len(moving) > 1 else float('nan'))
     return truth, speed
-
-
-def _with_path(env: dict) -> dict:
-    root = str(pathlib.Path(__file__).resolve().parents[2])
-    return env | {'PYTHONPATH': os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)}
 
 
 def bench_lockstep() -> float:

@@ -11,7 +11,8 @@ import signal
 import subprocess
 import sys
 
-REPO_PARAMS = pathlib.Path(__file__).resolve().parents[2] / 'params'
+ROOT = pathlib.Path(__file__).resolve().parents[2]     # the source tree, or site-packages
+REPO_PARAMS = ROOT / 'params'
 
 
 def params_dir() -> pathlib.Path:
@@ -22,7 +23,16 @@ def params_dir() -> pathlib.Path:
     return pathlib.Path(get_package_share_directory('motion_ctrl')) / 'params'
 
 
-def _default_sigint():
+def source_env(env: dict | None = None) -> dict:
+    """`env` (default: this process's environment) with the code this process runs, a source
+    tree or an install, first on PYTHONPATH: a node started from it runs the same code."""
+    env = dict(os.environ if env is None else env)
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (str(ROOT), env.get('PYTHONPATH')) if p)
+    return env
+
+
+def child_preexec():
+    """preexec_fn of a node process: SIGINT at its default, SIGTERM when its parent dies."""
     # A process started in the background of a non-interactive shell inherits SIGINT ignored.
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     # Fix: when the starting process dies without stop() (a killed or timed-out test run, a
@@ -50,13 +60,8 @@ class NodeProcess:
             args += ['-p', f'{k}:={v}']
         self.args = args
         self.log = open(log_path, 'w') if log_path else subprocess.DEVNULL
-        if env is None:
-            # The nodes run the same code as this process (a source tree or an install).
-            env = os.environ.copy()
-            root = str(pathlib.Path(__file__).resolve().parents[2])
-            env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
-                                     env=env, preexec_fn=_default_sigint)
+                                     env=source_env(env), preexec_fn=child_preexec)
 
     def servo_pid(self) -> int:
         """The pid of the node itself: its process on the servo bus (ros.servo_bus), a child

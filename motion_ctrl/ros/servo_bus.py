@@ -19,9 +19,7 @@ itself, as a plant of another make that answers on the topics there needs. Opt-i
 """
 from __future__ import annotations
 
-import contextlib
 import os
-import pathlib
 import re
 import signal
 import subprocess
@@ -56,12 +54,8 @@ def servo_domain(environ=os.environ) -> int | None:
 
 
 def servo_process_env(domain: int) -> dict:
-    env = os.environ.copy()
-    env['ROS_DOMAIN_ID'] = str(domain)
-    env[INSIDE] = '1'
-    root = str(pathlib.Path(__file__).resolve().parents[2])
-    env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
-    return env
+    from motion_ctrl.ros.processes import source_env
+    return source_env() | {'ROS_DOMAIN_ID': str(domain), INSIDE: '1'}
 
 
 _REMAP = re.compile(r'^(?:[^:=]+:)?__(node|name|ns):=(.+)$')
@@ -106,9 +100,9 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     bus = _Bus.open(domain, *node_name(name, argv))
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
-    from motion_ctrl.ros.processes import _default_sigint
+    from motion_ctrl.ros.processes import child_preexec
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
-                            env=servo_process_env(domain), preexec_fn=_default_sigint)
+                            env=servo_process_env(domain), preexec_fn=child_preexec)
     started.append(node)
     if stop:
         node.send_signal(signal.SIGINT)
@@ -126,23 +120,6 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         bus.close()
     rc = node.returncode
     return rc if rc >= 0 else 128 - rc
-
-
-@contextlib.contextmanager
-def _realtime_threads(priority: int):
-    """Threads started meanwhile (the DDS threads of a participant made then) run SCHED_FIFO at
-    `priority`; the calling thread goes back to its own scheduling after. Where that is not
-    allowed, nothing changes."""
-    try:
-        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (AttributeError, OSError):
-        yield
-        return
-    try:
-        yield
-    finally:
-        os.sched_setscheduler(0, policy, param)
 
 
 class _Bus:
@@ -164,7 +141,8 @@ class _Bus:
 
         from motion_ctrl.ros.bridge import POLL, Bridge
         self.contexts = (public_ctx, servo_ctx)
-        with _realtime_threads(BUS_THREAD_PRIORITY):     # (the participant comes with a node)
+        # (the participant comes with the first node)
+        with ros_env.realtime_threads(BUS_THREAD_PRIORITY):
             self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
                 f'[{name}] {m}', file=sys.stderr, flush=True))
         # The servo side copies every watched stream sample: the lighter executor (ros_env).

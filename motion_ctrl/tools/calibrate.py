@@ -343,8 +343,6 @@ def _spawn(args, out: pathlib.Path):
     controller_params = SPAWN_CONTROLLER | dict(p.split(':=', 1) for p in args.controller)
     d = params_dir()
     env = os.environ.copy()
-    root = str(pathlib.Path(__file__).resolve().parents[2])
-    env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH')) if p)
     if args.lockstep:
         env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
         controller = NodeProcess('controller_node', d / 'controller.yaml',

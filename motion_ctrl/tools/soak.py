@@ -216,9 +216,12 @@ def main(argv=None) -> int:
         soak = Soak(client)
         for _ in range(WARM_UP_MOVES):   # (the streams' histories fill during the first moves)
             soak.move()
-        processes = [(f'{name} {part}', pid) for name, n in zip(('plant', 'controller'), nodes)
-                     for part, pid in (('loop', n.servo_pid()), ('bridge', n.proc.pid))
-                     if part == 'loop' or pid != n.servo_pid()]
+        processes = []                   # (what, pid): each node's loop, and its bridge
+        for name, n in zip(('plant', 'controller'), nodes):
+            loop = n.servo_pid()
+            processes.append((f'{name} loop', loop))
+            if loop != n.proc.pid:
+                processes.append((f'{name} bridge', n.proc.pid))
         rss0 = [rss_kb(pid) for _, pid in processes]
         visitors = Visitors(a.interval, a.visitors, a.parallel).start()
         end = time.monotonic() + 60.0 * a.minutes
