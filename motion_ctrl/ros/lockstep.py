@@ -21,27 +21,20 @@ from motion_ctrl.ros import ros_env
 from motion_ctrl.ros.processes import NodeProcess, params_dir
 
 
-def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
-                 timeout: float = 60.0, log_dir=None):
-    """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second).
+# Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of stopped
+# processes in /dev/shm, and a new participant on the same domain and port was seen reading an
+# earlier run's last samples from them (a stale /clock ended a run at once). Lost UDP datagrams
+# cost nothing here: the plant resends a sample without answer.
+UDP_ONLY = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 
-    The move starts at sim time `start`. The observer may find the plant late (a missed
-    discovery announcement is repeated after 3 s, ~10 s of sim time): keep `start` well after
-    that; the samples before it show the slide at rest.
-    """
+
+def udp_context(domain: int):
+    """An initialised rclpy context on `domain` whose participants use loopback UDP only (the
+    variable is read when a participant is created; this process's environment is restored)."""
     import rclpy
-    d = params_dir()
-    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
-    domain = ros_env.spare_domain()
-    # Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of
-    # stopped processes in /dev/shm, and a new participant on the same domain and port was
-    # seen reading an earlier run's last samples from them (a stale /clock ended a run at
-    # once). Lost UDP datagrams cost nothing here: the plant resends a sample without answer.
-    udp = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
-    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | udp
     context = rclpy.Context()
-    saved = {k: os.environ.get(k) for k in udp}
-    os.environ.update(udp)               # read when the participant is created
+    saved = {k: os.environ.get(k) for k in UDP_ONLY}
+    os.environ.update(UDP_ONLY)
     try:
         rclpy.init(context=context, domain_id=domain)
     finally:
@@ -50,6 +43,38 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+    return context
+
+
+def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
+                log_dir=None, env: dict | None = None):
+    """Plant (the clock) and controller (on its sim time) as two processes on loopback UDP,
+    the params files plus these overrides; returns (plant, controller). The sim runs as soon as
+    they have found each other."""
+    d = params_dir()
+    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
+    env = dict(os.environ if env is None else env) | UDP_ONLY
+    controller = NodeProcess('controller_node', d / 'controller.yaml',
+                             (controller_params or {}) | {'use_sim_time': 'true'},
+                             log('controller'), env=env)
+    plant = NodeProcess('plant_node', d / 'plant.yaml', (plant_params or {}) | {'lockstep': 1},
+                        log('plant'), env=env)
+    return plant, controller
+
+
+def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
+                 timeout: float = 60.0, log_dir=None):
+    """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second).
+
+    The move starts at sim time `start`. The observer may find the plant late (a missed
+    discovery announcement is repeated after 3 s, ~10 s of sim time): keep `start` well after
+    that; the samples before it show the slide at rest.
+    """
+    d = params_dir()
+    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
+    domain = ros_env.spare_domain()
+    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | UDP_ONLY
+    context = udp_context(domain)
     # The observer is the third process on two cores: it must not slow the loop it watches.
     # It takes plant_states raw (no Python message per sample) and decodes them after the
     # run; progress is read from the newest sample a few times a second.

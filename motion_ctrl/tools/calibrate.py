@@ -338,24 +338,12 @@ SPAWN_CONTROLLER = {'feedback_timeout': '1.5'}
 
 def _spawn(args, out: pathlib.Path):
     """Plant and controller processes; with lockstep on loopback UDP (lockstep.py says why)."""
-    from motion_ctrl.ros.processes import NodeProcess, params_dir
+    from motion_ctrl.ros import lockstep
+    from motion_ctrl.ros.processes import start_slide
     plant_params = dict(p.split(':=', 1) for p in args.plant)
     controller_params = SPAWN_CONTROLLER | dict(p.split(':=', 1) for p in args.controller)
-    d = params_dir()
-    env = os.environ.copy()
-    if args.lockstep:
-        env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
-        controller = NodeProcess('controller_node', d / 'controller.yaml',
-                                 controller_params | {'use_sim_time': 'true'},
-                                 out / 'controller.log', env=env)
-        plant = NodeProcess('plant_node', d / 'plant.yaml', plant_params | {'lockstep': 1},
-                            out / 'plant.log', env=env)
-    else:
-        plant = NodeProcess('plant_node', d / 'plant.yaml', plant_params, out / 'plant.log',
-                            env=env)
-        controller = NodeProcess('controller_node', d / 'controller.yaml', controller_params,
-                                 out / 'controller.log', env=env)
-    return plant, controller
+    start = lockstep.start_slide if args.lockstep else start_slide
+    return start(controller_params, plant_params, log_dir=out)
 
 
 def session_arguments(ap: argparse.ArgumentParser, tool: str, plant_example: str) -> None:
@@ -389,7 +377,8 @@ def axis_session(args, tool: str, services: bool = False):
         f'out/{tool}-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
     if args.lockstep:
-        os.environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'     # as the spawned nodes
+        from motion_ctrl.ros.lockstep import UDP_ONLY
+        os.environ.update(UDP_ONLY)                             # as the spawned nodes
     # The nodes first, then this participant (as the demo): a client that was there before
     # the nodes started saw the first move end in FOLLOWING_ERROR_FATAL, 3 runs of 3 (not
     # understood; README Notes). Its readers joining a running controller can stall the
