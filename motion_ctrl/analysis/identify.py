@@ -42,8 +42,9 @@ as library functions on sampled records (numpy arrays, one sample per servo tick
 
 4. The `identify` tool's pieces: :func:`merge` (the runs of a measurement as one response),
    :func:`friction` (Coulomb and viscous friction from constant-velocity runs both ways),
-   :func:`physical_units` (the fit in kg, N/V, N/m from one known mass or force constant) and
-   :func:`plot_bode`.
+   :func:`physical_units` (the fit in kg, N/V, N/m from one known mass or force constant),
+   :func:`doubts` (why a fit would not describe the axis: too little of the band coherent, no
+   anti-resonance resolved) and :func:`plot_bode`.
 
 Units follow the controller's registers: positions in metres (load-equivalent on the motor
 encoder, as `Axis` converts counts), volts, seconds. No rclpy: the excitation runs inside the
@@ -66,7 +67,8 @@ __all__ = [
     'TwoMassModel', 'TwoMassFit', 'fit_two_mass',
     'Margins', 'margins', 'pid_response', 'pid_open_loop',
     'GAIN_MARGIN_DB', 'PHASE_MARGIN_DEG',
-    'merge', 'Friction', 'friction', 'physical_units', 'plot_bode',
+    'merge', 'Friction', 'friction', 'physical_units', 'plot_bode', 'doubts',
+    'MIN_COHERENT_FRACTION', 'MIN_INERTIA_RATIO',
 ]
 
 #: Kollmorgen WorkBench Performance Servo Tuner's default ("stiff") stability targets.
@@ -683,6 +685,28 @@ def friction(velocities, volts) -> Friction:
     res = u - a @ coef
     viscous = float(coef[2]) if speeds.size > 1 else 0.0
     return Friction(float(coef[0]), viscous, float(coef[1]), float(np.sqrt(np.mean(res ** 2))))
+
+
+#: the share of the band measured coherently below which a fit is not reported as a model
+MIN_COHERENT_FRACTION = 0.6
+#: a slide/motor inertia ratio below this means no anti-resonance was resolved
+MIN_INERTIA_RATIO = 0.01
+
+
+def doubts(fit: TwoMassFit, coherent_fraction: float) -> list[str]:
+    """Why a fit does not describe the axis it was measured on ([] when nothing stands out): too
+    little of the band measured coherently for the fit to rest on (a machine whose servo ticks
+    are not evenly spaced smears a sine's phase: on this project's 2-core VM in real time, 21-33
+    % of the default band), or no anti-resonance below the resonance (the fit merged the two:
+    slide/motor inertia ratio ~0, and every mass from it meaningless)."""
+    out = []
+    if not coherent_fraction >= MIN_COHERENT_FRACTION:
+        out.append(f'only {coherent_fraction * 100:.0f} % of the band measured with coherence '
+                   f'>= 0.9 (at least {MIN_COHERENT_FRACTION * 100:.0f} % needed)')
+    if not fit.inertia_ratio >= MIN_INERTIA_RATIO:
+        out.append(f'no anti-resonance resolved below the resonance (slide/motor inertia '
+                   f'ratio {fit.inertia_ratio:.3g})')
+    return out
 
 
 def physical_units(fit: TwoMassFit, *, slide_mass=None, force_per_volt=None) -> dict:

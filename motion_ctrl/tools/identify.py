@@ -256,6 +256,13 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     log(f'identify: wrote {out / "identify.yaml"}, {out / RESPONSE_FILE}, {out / "report.md"} '
         f'and {png} '
         f'({seconds:.1f} s)')
+    problems = idf.doubts(fit, result['coherent_fraction'])
+    if problems:
+        raise IdentifyError('the measurement does not give a model of the axis: '
+                            + '; '.join(problems) + f' (look at {png}). A larger --amplitude '
+                            'or a longer --dwell where the plot is scattered; on a machine '
+                            'whose servo ticks jitter, the lockstep simulation (--spawn '
+                            '--lockstep) or a quieter hour')
     return result
 
 
