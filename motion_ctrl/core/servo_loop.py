@@ -9,8 +9,9 @@ LinuxCNC's motion controller cycle runs it, in named stages:
     at most two periods) and beyond `feedback_timeout` the axis faults (FEEDBACK_FAULT); at
     start-up the loop closes only once the encoder stream has run STREAM_SETTLE (real time;
     PMAC Ixx80 = 1 power-on enable) or at the first sample (sim time);
- 4. coordinated trajectories (PMAC PVT): one whose axis was stopped, aborted, disabled or
-    faulted stops the other axes of it too (a coordinate system stops as one);
+ 4. coordinated trajectories (PMAC PVT, core.coordination): those due start, and one whose
+    axis was stopped, aborted, disabled or faulted stops the other axes of it too (a
+    coordinate system stops as one);
  5. per axis, the sample's age (it is compared with the command of its own time) and the
     axis's own tick (`Axis.update`).
 
@@ -24,7 +25,7 @@ from dataclasses import dataclass, field
 from motion_ctrl.core import excitation
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import LoopStats
-from motion_ctrl.core.trajectory import AxisLimits, Trajectory
+from motion_ctrl.core.coordination import CoordinateSystem
 from msg_defs.status import Status
 
 # s of encoder samples before the loop closes at start-up (real time): while DDS discovery
@@ -38,17 +39,6 @@ def _ns(seconds: float) -> float:
     """A difference of two stamps [s], back on the nanosecond grid ROS stamps live on: k·T − (k−1)·T
     in floats is T only to ~1e-18, and the profile must step by exactly the period."""
     return round(seconds * 1e9) / 1e9
-
-
-@dataclass(frozen=True)
-class Prepared:
-    """A trajectory checked and built from the axes' state `start` ({axis: (p, v, a)}), and
-    each axis's share of it (`paths`, Trajectory.paths: a few ms for a few hundred points, so
-    made here, off the servo thread where the node can)."""
-    spec: dict
-    trajectory: Trajectory
-    start: dict
-    paths: dict
 
 
 @dataclass
@@ -78,10 +68,7 @@ class ServoLoop:
         self.first_sample: dict[str, float] = {}
         self.waited = {a: 0.0 for a in axes}
         self.scheduled: list[tuple[float, str, float, int]] = []   # (stamp, axis, target, epoch)
-        # Trajectories: those waiting for their stamp (stamp, spec, {axis: epoch}), and those
-        # running ({axis: (its path, the command epoch it started in)}).
-        self.scheduled_paths: list[tuple[float, Prepared, dict[str, int]]] = []
-        self.running_paths: list[dict] = []
+        self.coords = CoordinateSystem(axes)
         self._faults = {a: 0 for a in axes}
         self._diverged: dict[str, tuple | None] = {}      # the last logged, per axis
         self._age_recorded = False   # the sample age of this tick is in the statistics
@@ -154,87 +141,19 @@ class ServoLoop:
                 refused.append((a, reason))
         return refused
 
-    # -- coordinated trajectories (PMAC PVT) ---------------------------------------------------
+    # -- coordinated trajectories (PMAC PVT): the coordinate system ------------------------------
     def prepare(self, spec: dict):
-        """Check and build the trajectory of `spec` (msg_defs.read_joint_trajectory's dict)
-        from the axes' commanded state now: a Prepared, or the refusal. It only reads the
-        axes, so the node can run it off the servo thread (a 400-point quintic takes ~8 ms);
-        `trajectory` builds it again if the axes have moved meanwhile."""
-        limits = {a: AxisLimits.from_registers(self.values[a]) for a in self.axes}
-        start = {a: self.axes[a].path_state for a in spec['names'] if a in self.axes}
-        try:
-            built = Trajectory.build(spec['names'], spec['times'], spec['positions'],
-                                     spec['velocities'], spec['accelerations'],
-                                     start=start, limits=limits)
-        except ValueError as e:
-            return str(e)
-        return Prepared(spec, built, start, built.paths())
+        """Check and build the trajectory of `spec` from the axes' commanded state now
+        (CoordinateSystem.prepare: may run off the servo thread)."""
+        return self.coords.prepare(spec, self.values)
 
     def trajectory(self, job, stamp: float | None = None, now: float | None = None):
-        """Start (or, with a `stamp` after `now`, schedule) a multi-axis trajectory: `job` a
-        spec or a Prepared of it. Checked as a whole from the axes' commanded state at the
-        start (motion_ctrl.core.trajectory); returns the refusal, or None. A refused trajectory
-        changes nothing."""
+        """Start (or, with a `stamp` after `now`, schedule) a multi-axis trajectory, after any
+        register set accepted before it (CoordinateSystem.start); returns the refusal, or
+        None. A refused trajectory changes nothing."""
         if self.staged:
             self.apply_staged()
-        if isinstance(job, dict) or any(self.axes[a].path_state != s
-                                        for a, s in job.start.items()):
-            job = self.prepare(job if isinstance(job, dict) else job.spec)
-            if isinstance(job, str):
-                return job
-        names = job.spec['names']
-        for a in names:
-            reason = self.axes[a].start_refusal('trajectory')
-            if reason:
-                return reason
-        if stamp is not None and now is not None and stamp > now + 1e-9:
-            self.scheduled_paths.append(
-                (stamp, job, {a: self.axes[a].command_epoch for a in names}))
-            return None
-        paths = job.paths
-        for a in names:
-            ok, reason = self.axes[a].follow(paths[a])
-            if not ok:                       # (checked above; a refusal here still counts)
-                self._stop_paths(set(names), f'{a} refused its path')
-                return reason
-        self.running_paths = [g for g in self.running_paths if not set(g) & set(names)]
-        self.running_paths.append({a: (paths[a], self.axes[a].command_epoch) for a in names})
-        return None
-
-    def _stop_paths(self, names: set, why: str) -> list[tuple[str, str]]:
-        log = []
-        for a in sorted(names):
-            ok, _ = self.axes[a].stop('stop')
-            if ok:
-                log.append(('warning', f'{a}: trajectory stopped: {why}'))
-        return log
-
-    def _coordinate(self, now: float, out: Tick) -> None:
-        """Start the trajectories that are due; stop the axes of a running one whose other
-        axis left it by a stop, abort, disable or fault."""
-        due = [x for x in self.scheduled_paths if x[0] <= now + 1e-9]
-        if due:
-            self.scheduled_paths = [x for x in self.scheduled_paths if x[0] > now + 1e-9]
-            for stamp, job, epochs in due:
-                void = [a for a, e in epochs.items() if self.axes[a].command_epoch != e]
-                if void:
-                    out.log.append(('warning', f'scheduled trajectory (stamped {stamp:.3f} s) '
-                                               f'cancelled by {self.axes[void[0]].cancelled_by}'
-                                               f' on {void[0]}'))
-                    continue
-                reason = self.trajectory(job)
-                if reason:
-                    out.log.append(('warning', f'joint_trajectory refused: {reason}'))
-        running = []
-        for group in self.running_paths:
-            on = {a for a, (path, _) in group.items() if self.axes[a].profile.following(path)}
-            left = [a for a, (_, epoch) in group.items() if self.axes[a].command_epoch != epoch]
-            if left and on:
-                why = f'{left[0]} left it ({self.axes[left[0]].cancelled_by})'
-                out.log += self._stop_paths(on, why)
-            elif on:
-                running.append(group)
-        self.running_paths = running
+        return self.coords.start(job, self.values, stamp, now)
 
     # -- the tick -------------------------------------------------------------------------------
     def tick(self, now: float) -> Tick | None:
@@ -249,8 +168,8 @@ class ServoLoop:
             out.log += self.apply_staged()
         if self.scheduled:
             self._scheduled(now, out)
-        if self.scheduled_paths or self.running_paths:
-            self._coordinate(now, out)
+        if self.coords.busy:
+            out.log += self.coords.tick(now, self.values)
         self._age_recorded = False   # (one encoder message carries every axis)
         for a, axis in self.axes.items():
             enc = self.enc[a]
