@@ -28,9 +28,9 @@ HALF_COUNT = 0.5 * COUNT        # half a linear count of the Galil slide, m
 # Every register the servo law reads, pinned here so that changes of the table's defaults (the
 # tuning is somebody else's) cannot change these hand-worked numbers.
 PINNED = dict(mode='position_pid', kp=0.0, ki=0.0, kd=0.0, kvff=0.0, kaff=0.0, friction_ff=0.0,
-              bias=0.0, integration_mode='always', integration_limit=10.0, output_limit=10.0,
-              output_deadband=0.0, deadband_tolerance=0.0, notch_n1=0.0, notch_n2=0.0,
-              notch_d1=0.0, notch_d2=0.0, position_error_limit=0.0)
+              friction_ff_at_rest=0.0, bias=0.0, integration_mode='always', integration_limit=10.0,
+              output_limit=10.0, output_deadband=0.0, deadband_tolerance=0.0, notch_n1=0.0,
+              notch_n2=0.0, notch_d1=0.0, notch_d2=0.0, position_error_limit=0.0)
 
 
 def law(**registers) -> ServoLaw:
@@ -167,6 +167,23 @@ def test_friction_feedforward_by_the_sign_of_the_commanded_velocity():
     assert tick(s, cmd_vel=0.01, act_vel=-0.02) == pytest.approx(0.3, abs=1e-12)
     assert tick(s, cmd_vel=-0.01, act_vel=0.02) == pytest.approx(-0.3, abs=1e-12)
     assert tick(s, cmd_vel=0.0, act_vel=0.02) == 0.0          # at rest: nothing
+
+
+def test_friction_at_rest_by_the_sign_of_an_error_outside_the_anti_hunting_window():
+    """friction_ff_at_rest: once the command has stopped, a slide held short by stiction is
+    pushed by the sign of its error, until the error is inside the anti-hunting window (half a
+    count, or deadband_tolerance); never while the command moves or the target is not stopped,
+    nor in a velocity mode."""
+    s = law(friction_ff=0.3, friction_ff_at_rest=0.2)
+    assert tick(s, 3 * HALF_COUNT) == pytest.approx(0.2, abs=1e-12)       # short: pushed on
+    assert tick(s, -3 * HALF_COUNT) == pytest.approx(-0.2, abs=1e-12)     # long: pushed back
+    assert tick(s, 0.9 * HALF_COUNT) == 0.0                               # inside the window
+    assert tick(s, 3 * HALF_COUNT, cmd_vel=0.01) == pytest.approx(0.3, abs=1e-12)   # Ixx68
+    assert tick(s, 3 * HALF_COUNT, target_stopped=False) == 0.0           # still settling in
+    s = law(friction_ff_at_rest=0.2, deadband_tolerance=10 * HALF_COUNT)
+    assert tick(s, 3 * HALF_COUNT) == 0.0                                 # the wider window
+    assert tick(law(friction_ff_at_rest=0.2, mode='velocity_pid'), 3 * HALF_COUNT) == 0.0
+    assert tick(law(friction_ff=0.3), 3 * HALF_COUNT) == 0.0             # off by default
 
 
 def test_bias_is_added():
@@ -404,7 +421,8 @@ def servo_law_registers() -> set:
 EXPECTED = {
     'mode': ('', 'RMC'), 'kp': ('V/m', 'Ixx30'), 'ki': ('V/(m·s)', 'Ixx33'),
     'kd': ('V·s/m', 'Ixx31'), 'kvff': ('V·s/m', 'Ixx32'), 'kaff': ('V·s²/m', 'Ixx35'),
-    'friction_ff': ('V', 'Ixx68'), 'bias': ('V', 'Ixx29'), 'integration_mode': ('', 'Ixx34'),
+    'friction_ff': ('V', 'Ixx68'), 'friction_ff_at_rest': ('V', 'Ixx68'), 'bias': ('V', 'Ixx29'),
+    'integration_mode': ('', 'Ixx34'),
     'integration_limit': ('V', 'Ixx63'), 'output_limit': ('V', 'Ixx69'),
     'output_deadband': ('V', 'RMC'), 'deadband_tolerance': ('m', 'RMC'),
     'notch_n1': ('', 'Ixx36'), 'notch_n2': ('', 'Ixx37'), 'notch_d1': ('', 'Ixx38'),

@@ -32,7 +32,11 @@ something (the resonance limits the loop): more than 10 % more ki than the best 
 
 Feedforward (on the command, outside the loop): kaff = J (the acceleration it cancels),
 kvff = kd + viscous (PMAC form: kd acts on the actual velocity, kvff = kd cancels it on a move,
-plus the viscous friction), friction_ff = the Coulomb friction (Ixx68), from identify's jogs.
+plus the viscous friction), friction_ff = the Coulomb friction (Ixx68), from identify's jogs,
+and friction_ff_at_rest = AT_REST_SHARE (0.75) of it: at rest, pushed by the sign of a position
+error outside the anti-hunting window, so the last counts of a move are not crept out by the
+integrator against stiction (the demo's moves on the default slide in the harness: ~30 ms
+instead of ~310 with the same gains).
 
 No rclpy: file input (identify's output folder) and plots are here, ROS is in tools/autotune.py.
 """
@@ -59,8 +63,13 @@ NOTCH_KEEP_GAIN = 1.10     # a notch must raise ki by 10 % to be worth its phase
 SHAPES = tuple((a, b) for a in (1.5, 2.0, 3.0, 4.0, 6.0) for b in (4.0, 8.0, 16.0))
 #: the search asks this much more than the preset (grids differ; the gains are rounded)
 SEARCH_PAD_DB, SEARCH_PAD_DEG = 0.2, 0.5
-GAIN_REGISTERS = ('kp', 'ki', 'kd', 'kvff', 'kaff', 'friction_ff',
-                  'notch_n1', 'notch_n2', 'notch_d1', 'notch_d2')
+NOTCH_REGISTERS = ('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2')
+GAIN_REGISTERS = ('kp', 'ki', 'kd', 'kvff', 'kaff', 'friction_ff', 'friction_ff_at_rest') \
+    + NOTCH_REGISTERS
+#: friction_ff_at_rest as a share of the Coulomb friction: below 1, friction still stops the
+#: slide once it breaks free; in the harness the demo's moves settled in ~30 ms from 0.7 to 0.9
+#: (0.6: 140-180 ms, 1.0: 2.5 counts of overshoot; the integrator alone: 310 ms)
+AT_REST_SHARE = 0.75
 MIN_COHERENCE = 0.9
 
 
@@ -166,7 +175,7 @@ def _closed_bandwidth(freq, gains, motor, load, feedback, period) -> float:
     feedforward: z^-1·P·G_pos / (1 + L)."""
     pos = load if feedback == 'dual' else motor
     L = _loop(freq, gains, motor, load, feedback, period)
-    notch = tuple(float(gains.get(k, 0.0)) for k in GAIN_REGISTERS[6:])
+    notch = tuple(float(gains.get(k, 0.0)) for k in NOTCH_REGISTERS)
     P, _ = idf.pid_response(freq, kp=gains['kp'], ki=gains.get('ki', 0.0),
                             kd=gains.get('kd', 0.0), servo_period=period, notch=notch)
     z = np.exp(2j * math.pi * np.asarray(freq) * period)
@@ -231,9 +240,9 @@ def _check_gains(gains) -> dict:
                 or not math.isfinite(v) or v < 0:
             raise ValueError(f'{k} must be a finite number >= 0, got {v!r}')
         out[k] = float(v)
-    n = tuple(float(gains.get(k, 0.0)) for k in GAIN_REGISTERS[6:])
+    n = tuple(float(gains.get(k, 0.0)) for k in NOTCH_REGISTERS)
     nt.Biquad.validate(*n)
-    out.update(zip(GAIN_REGISTERS[6:], n))
+    out.update(zip(NOTCH_REGISTERS, n))
     return out
 
 
@@ -270,7 +279,7 @@ class NotchChoice:
         c = nt.design(self.f_zero, self.zeta_zero, self.f_pole, self.zeta_pole, period,
                       prewarp=True)
         nt.Biquad.validate(*c)
-        return dict(zip(GAIN_REGISTERS[6:], (float(x) for x in c)))
+        return dict(zip(NOTCH_REGISTERS, (float(x) for x in c)))
 
 
 def _notch_candidates(axis: AxisResponse) -> list:
@@ -301,7 +310,7 @@ class Proposal:
     """The registers proposed for a preset, and what they give on the measured axis."""
     preset: Preset
     feedback: str
-    registers: dict                      # kp, ki, kd, kvff, kaff, friction_ff, notch_n1..d2
+    registers: dict                      # GAIN_REGISTERS
     notch: NotchChoice | None
     evaluation: Evaluation
     cap_hz: float                        # the crossover limit of the preset
@@ -411,7 +420,7 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
     _, regs, shape = chosen
     regs = {k: _round(v) for k, v in regs.items() if k in ('kp', 'ki', 'kd')} | \
         {k: float(v) for k, v in regs.items() if k.startswith('notch_')}
-    regs |= {k: 0.0 for k in GAIN_REGISTERS[6:] if k not in regs}
+    regs |= {k: 0.0 for k in NOTCH_REGISTERS if k not in regs}
     ev = evaluate(axis, regs, feedback)
     cross = ev.crossover_hz or 0.0
     limit = ('the preset\'s crossover limit' if cross >= 0.97 * cap else
@@ -420,9 +429,12 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
                               ev.model.phase_crossover_hz > 0.8 * axis.model.antiresonance_hz
                               else ''))
     kd = regs['kd']
+    friction = max(axis.coulomb, 0.0)
     regs = dict(kp=regs['kp'], ki=regs['ki'], kd=kd,
                 kvff=_round(kd + max(axis.viscous, 0.0)), kaff=_round(J),
-                friction_ff=_round(axis.coulomb)) | {k: regs[k] for k in GAIN_REGISTERS[6:]}
+                friction_ff=_round(friction),
+                friction_ff_at_rest=_round(AT_REST_SHARE * friction)) \
+        | {k: regs[k] for k in NOTCH_REGISTERS}
     ev.registers = dict(regs)
     return Proposal(preset, feedback, regs, choice, ev, cap, limit, shape, notes)
 

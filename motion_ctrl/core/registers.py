@@ -190,7 +190,14 @@ AXIS_REGISTERS = (
     _r('kvff', 'double', 161.06, 'V·s/m', 'Velocity feedforward.', 'PMAC Ixx32', min=0.0),
     _r('kaff', 'double', 0.5966, 'V·s²/m', 'Acceleration feedforward.', 'PMAC Ixx35', min=0.0),
     _r('friction_ff', 'double', 0.0, 'V', 'Friction feedforward, added by the sign of the '
-       'commanded velocity (0 at rest).', 'PMAC Ixx68', min=0.0, max=10.0),
+       'commanded velocity (0 at rest; see friction_ff_at_rest).', 'PMAC Ixx68', min=0.0,
+       max=10.0),
+    _r('friction_ff_at_rest', 'double', 0.0, 'V', 'Breakaway aid: once the command has '
+       'stopped, added by the sign of the position error while that lies outside the '
+       'anti-hunting window (half a count, or deadband_tolerance), so the last counts of a move '
+       'are not crept out against stiction by the integrator alone. Keep it below the sliding '
+       'friction (autotune: 0.75 x the Coulomb friction), so that friction still stops the '
+       'slide once it breaks free.', 'motion_ctrl (cf. PMAC Ixx68)', min=0.0, max=10.0),
     _r('bias', 'double', 0.0, 'V', 'Constant output offset (closed loop only).',
        'PMAC Ixx29 / Galil OF', min=-10.0, max=10.0),
     _r('integration_mode', 'string', 'always', '', 'always: integrate all the time; at_rest: '
@@ -412,6 +419,7 @@ class LawConfig(Config):
     kvff: float
     kaff: float
     friction_ff: float
+    friction_ff_at_rest: float
     bias: float
     integration_mode: str
     integration_limit: float

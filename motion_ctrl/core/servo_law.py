@@ -11,7 +11,9 @@ FE = commanded − actual position of the position-loop encoder, clipped at ±po
 acceleration; AV = actual velocity of the velocity-loop encoder, which may be another encoder
 (PMAC Ixx04 / Galil DV: that is the dual loop). Kd acts on the actual velocity, not on the error,
 as PMAC does: set kvff = kd for a derivative of the error. friction_ff (Ixx68) is added by the
-sign of the *commanded* velocity, 0 at rest.
+sign of the *commanded* velocity, 0 at rest; once the command has stopped, friction_ff_at_rest
+is added by the sign of the position error while that lies outside the anti-hunting window
+below (a position mode only): a breakaway aid against stiction, kept below the sliding friction.
 
 The integrator input is off (INTEGRATOR_HELD; its output is held, never zeroed) when
  * integration_mode is `at_rest` (Ixx34 = 1) and the commanded velocity is non-zero;
@@ -186,8 +188,18 @@ class ServoLaw:
             meas, rate = act_vel, vel_loop_acc
             anti = False
         self.anti_hunting = anti
-        # friction_ff by the sign of the commanded velocity, 0 at rest (Ixx68)
-        friction = c.friction_ff if cmd_vel > 0.0 else -c.friction_ff if cmd_vel < 0.0 else 0.0
+        # friction_ff by the sign of the commanded velocity (Ixx68); at rest friction_ff_at_rest
+        # by the sign of an error outside the anti-hunting window: stiction holds a slide a
+        # count or more short, and the integrator alone takes a quarter of a second to creep
+        # it in. Below the sliding friction, friction still stops the slide once it is free.
+        if cmd_vel > 0.0:
+            friction = c.friction_ff
+        elif cmd_vel < 0.0:
+            friction = -c.friction_ff
+        elif c.friction_ff_at_rest and c.position_mode and target_stopped and not anti and raw:
+            friction = c.friction_ff_at_rest if raw > 0.0 else -c.friction_ff_at_rest
+        else:
+            friction = 0.0
         ff = c.kvff * cmd_vel + c.kaff * cmd_acc + friction + c.bias
         out = self._law.update(self, dt, error, raw, ff, meas, rate, cmd_vel, target_stopped,
                                anti)
