@@ -186,6 +186,20 @@ def _demo_moves(regs):
     return out
 
 
+def test_a_viscous_pole_fitted_high_does_not_leave_the_search_without_a_start():
+    """identify's band starts at 20 Hz, so the viscous pole it fits is barely seen and may come
+    out at 10 rad/s (the stiffness/10 slide in lockstep, 2026-11-24; the plant's own is 0.1):
+    then the lowest design crossover (0.5 Hz) puts no gain crossover on the grid at all. Each
+    shape's search starts at the lowest crossover that is feasible (it used to give the shape
+    up, and with every shape given up: "no gains meet stiff")."""
+    import dataclasses
+    ax, (ad, bd) = axis()
+    high = dataclasses.replace(ax, model=dataclasses.replace(ax.model, viscous_pole=10.3))
+    p = at.propose(high, 'stiff', 'dual')
+    assert p.ok, at.format_proposal(p)
+    assert check(p.registers, 'dual', ad, bd).phase_margin_deg >= 44.0
+
+
 def test_stiff_preset_settles_the_demo_moves_faster_than_the_defaults():
     """Issue 14, must-show 3 in the harness (the DDS run is the tool's --apply): the stiff
     preset from the two-mass model of the default slide, on the simulated slide with its

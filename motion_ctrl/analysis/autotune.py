@@ -71,6 +71,8 @@ GAIN_REGISTERS = ('kp', 'ki', 'kd', 'kvff', 'kaff', 'friction_ff', 'friction_ff_
 #: (0.6: 140-180 ms, 1.0: 2.5 counts of overshoot; the integrator alone: 310 ms)
 AT_REST_SHARE = 0.75
 MIN_COHERENCE = 0.9
+#: design crossovers [Hz] tried, lowest first, as the low end of each shape's bisection
+LOW_CROSSOVERS_HZ = (0.5, 1.0, 2.0, 5.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -370,10 +372,15 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
     def best_for(nregs) -> tuple | None:
         best = None
         for a, b in SHAPES:
-            lo, hi = math.log(2 * math.pi * 0.5), math.log(top)
             regs = lambda wc: _shape_gains(J, wc, a, b) | nregs   # noqa: E731
-            if not feasible(regs(math.exp(lo)))[0]:
+            # The bisection needs a feasible low end. The lowest crossover is not always one:
+            # a viscous pole fitted above it (the band starts at 20 Hz, so the fit barely
+            # sees it) can keep the loop off 0 dB on the grid there.
+            lo = next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
+                       if feasible(regs(2 * math.pi * f0))[0]), None)
+            if lo is None:
                 continue
+            hi = math.log(top)
             for _ in range(11):
                 mid = 0.5 * (lo + hi)
                 if feasible(regs(math.exp(mid)))[0]:
