@@ -217,7 +217,8 @@ def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
 @pytest.fixture
 def bus_slide(own_domain, tmp_path, monkeypatch):
     """`slide` with the nodes on a servo bus (MOTION_CTRL_SERVO_DOMAIN=auto)."""
-    monkeypatch.setenv('MOTION_CTRL_SERVO_DOMAIN', 'auto')
+    from motion_ctrl.ros import servo_bus
+    monkeypatch.setenv(servo_bus.ENV, 'auto')
     with running_slide(tmp_path, lambda: Recorder(own_domain), client_first=True) as s:
         _enable(s.client)
         yield s

@@ -878,8 +878,9 @@ def bus_encoders():
     from rclpy.context import Context
     from motion_ctrl.ros import servo_bus
     context = Context()
-    rclpy.init(context=context, domain_id=servo_bus.servo_domain()
-               or int(os.environ['ROS_DOMAIN_ID']))
+    bus = servo_bus.servo_domain()
+    rclpy.init(context=context,
+               domain_id=bus if bus is not None else int(os.environ['ROS_DOMAIN_ID']))
     node = rclpy.create_node('test_bad_encoders', context=context)
     yield node.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
     node.destroy_node()

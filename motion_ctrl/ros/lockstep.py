@@ -8,7 +8,6 @@ whole run is bit-identical. Used by the lockstep test and the benchmark.
 from __future__ import annotations
 
 import os
-import pathlib
 import time
 
 from rclpy.node import Node
@@ -17,8 +16,8 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 import msg_defs as md
-from motion_ctrl.ros import ros_env
-from motion_ctrl.ros.processes import NodeProcess, params_dir
+from motion_ctrl.ros import processes, ros_env
+from motion_ctrl.ros.processes import NodeProcess, log_file, params_dir
 
 
 # Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of stopped
@@ -48,18 +47,12 @@ def udp_context(domain: int):
 
 def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
                 log_dir=None, env: dict | None = None):
-    """Plant (the clock) and controller (on its sim time) as two processes on loopback UDP,
-    the params files plus these overrides; returns (plant, controller). The sim runs as soon as
-    they have found each other."""
-    d = params_dir()
-    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
-    env = dict(os.environ if env is None else env) | UDP_ONLY
-    controller = NodeProcess('controller_node', d / 'controller.yaml',
-                             (controller_params or {}) | {'use_sim_time': 'true'},
-                             log('controller'), env=env)
-    plant = NodeProcess('plant_node', d / 'plant.yaml', (plant_params or {}) | {'lockstep': 1},
-                        log('plant'), env=env)
-    return plant, controller
+    """Plant (the clock) and controller (on its sim time) as two processes on loopback UDP
+    (processes.start_slide with the lockstep overrides); returns (plant, controller). The sim
+    runs as soon as they have found each other: the plant resends its sample until answered."""
+    return processes.start_slide((controller_params or {}) | {'use_sim_time': 'true'},
+                                 (plant_params or {}) | {'lockstep': 1}, log_dir,
+                                 env=dict(os.environ if env is None else env) | UDP_ONLY)
 
 
 def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
@@ -71,7 +64,6 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     that; the samples before it show the slide at rest.
     """
     d = params_dir()
-    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
     domain = ros_env.spare_domain()
     env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | UDP_ONLY
     context = udp_context(domain)
@@ -110,7 +102,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     # the plant: the sim runs as soon as plant and controller have found each other (the
     # plant resends t = 0 until then); this observer usually sees it from the first samples.
     controller = NodeProcess('controller_node', d / 'controller.yaml', {'use_sim_time': 'true'},
-                             log('controller'), env=env)
+                             log_file(log_dir, 'controller'), env=env)
     try:
         if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
             raise RuntimeError('controller not discovered')
@@ -119,8 +111,8 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
         stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
         pub_target.publish(md.joint_state(stamp, ['x'], [target]))
         spin_until(lambda: False, 0.2)
-        plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1}, log('plant'),
-                            env=env)
+        plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1},
+                            log_file(log_dir, 'plant'), env=env)
         if not spin_until(lambda: raw, 30.0):
             raise RuntimeError('lockstep plant not discovered')
         if not spin_until(lambda: sim_time() >= end, timeout):

@@ -87,15 +87,20 @@ class NodeProcess:
         return self.proc.returncode
 
 
+def log_file(log_dir, node: str) -> pathlib.Path | None:
+    """Where node `node` (plant, controller) of a run logs: `log_dir`/<node>.log, or nowhere."""
+    return pathlib.Path(log_dir) / f'{node}.log' if log_dir else None
+
+
 def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
-                log_dir=None, params_files: bool = True):
+                log_dir=None, params_files: bool = True, env: dict | None = None):
     """Plant and controller with the default params files (which set the registers of axis x;
     params_files=False: the register table's defaults, the same values, for any axis names)
-    plus overrides; returns both."""
+    plus overrides, in `env` (default: this process's environment); returns both."""
     d = params_dir()
-    log = (lambda n: pathlib.Path(log_dir) / f'{n}.log') if log_dir else (lambda n: None)
     file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
-    plant = NodeProcess('plant_node', file('plant'), plant_params, log('plant'))
+    plant = NodeProcess('plant_node', file('plant'), plant_params, log_file(log_dir, 'plant'),
+                        env=env)
     controller = NodeProcess('controller_node', file('controller'), controller_params,
-                             log('controller'))
+                             log_file(log_dir, 'controller'), env=env)
     return plant, controller

@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 
-from motion_ctrl.ros import ros_env
+from motion_ctrl.ros import ros_env, servo_bus
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
 
 BUSY_LOOP = 'while True: pass'
@@ -201,7 +201,7 @@ def main(argv=None) -> int:
           f'{a.busy} busy loop(s), realtime_priority {a.realtime_priority}, servo bus '
           f'{a.servo_bus} (ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
     rt = {'realtime_priority': a.realtime_priority}
-    os.environ['MOTION_CTRL_SERVO_DOMAIN'] = a.servo_bus
+    os.environ[servo_bus.ENV] = a.servo_bus
     nodes = start_slide(rt, rt, log_dir=out)
     busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(a.busy)]
     rclpy.init()
