@@ -74,14 +74,21 @@ class NodeProcess:
         return children[0] if children else self.proc.pid
 
     def stop(self, timeout: float = 5.0) -> int:
-        """SIGINT, wait; SIGKILL only if it does not stop. Returns the exit code."""
+        """SIGINT, wait; SIGABRT (a stack dump in the log), then SIGKILL, only if it does not
+        stop. Returns the exit code."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
             try:
                 self.proc.wait(timeout)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+                # SIGABRT first: faulthandler (the EventsExecutor enables it) writes where
+                # every thread of the hung node is to its log; then SIGKILL.
+                self.proc.send_signal(signal.SIGABRT)
+                try:
+                    self.proc.wait(2.0)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait()
         if not isinstance(self.log, int):        # (subprocess.DEVNULL)
             self.log.close()
         return self.proc.returncode
