@@ -413,7 +413,7 @@ def spin(node) -> None:
     """
     executor = ros_env.executor()
     executor.add_node(node)
-    stop = []
+    stop: list[bool] = []
 
     def on_signal(*_):
         if not stop:
