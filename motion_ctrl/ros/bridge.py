@@ -155,6 +155,7 @@ class Bridge:
         self.services: set[str] = set()          # services answered
         self.skipped: set[str] = set()           # names whose type is not installed here
         self.dropping: set[str] = set()          # topics that lost a sample (logged once)
+        self.strangers: set[str] = set()         # foreign nodes seen on the bus (logged once)
         self.started = time.monotonic()
         self.next_look = 0.0
 
@@ -178,7 +179,9 @@ class Bridge:
     def look(self) -> None:
         """Mirror what the node has that is not mirrored yet."""
         ns = self.namespace
-        if (self.name, ns) not in self.servo.get_node_names_and_namespaces():
+        nodes = self.servo.get_node_names_and_namespaces()
+        self._strangers(nodes)
+        if (self.name, ns) not in nodes:
             return
         for topic, types in self.servo.get_publisher_names_and_types_by_node(self.name, ns):
             if topic in self.outward:
@@ -212,6 +215,22 @@ class Bridge:
             self.public.create_service(
                 srv_type, service, self._forward(client, service), callback_group=self.group)
             self.services.add(service)
+
+    def _strangers(self, nodes: list[tuple[str, str]]) -> None:
+        """Say so (once per node) when the servo bus holds a node that is neither a bridge nor
+        bridged: another system on the bus's domain, whose participants the loop's streams now
+        meet (servo_bus: choose domains 50 apart)."""
+        if time.monotonic() < self.started + STARTUP:
+            return               # (a node and its bridge are discovered in either order)
+        names = {n for n, _ in nodes}
+        for n, ns in nodes:
+            fqn = ns.rstrip('/') + '/' + n
+            if (n.startswith('_bridge_') or f'_bridge_{n}' in names or fqn in self.strangers):
+                continue
+            self.strangers.add(fqn)
+            self.log(f'bridge: {fqn} is on the servo bus (domain '
+                     f'{self.servo.context.get_domain_id()}) and not bridged: another system '
+                     f'on this domain? Its participants can hold up the loop')
 
     def _type(self, name: str, types: list[str]):
         t = interface_type(types[0]) if types else None

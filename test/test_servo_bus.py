@@ -1,0 +1,54 @@
+"""The servo bus's rules that need no running node (motion_ctrl.ros.servo_bus, bridge)."""
+import types
+
+import pytest
+
+pytest.importorskip('rclpy')
+
+from motion_ctrl.ros import servo_bus  # noqa: E402
+from motion_ctrl.ros.bridge import STARTUP, Bridge  # noqa: E402
+
+
+@pytest.mark.parametrize('value, user, bus', [
+    ('auto', '7', 58), ('auto', '0', 51), ('auto', '60', 10), ('', '7', None), ('off', '7', None),
+    ('12', '7', 12)])
+def test_servo_domain_from_the_environment(value, user, bus):
+    env = {servo_bus.ENV: value, 'ROS_DOMAIN_ID': user}
+    assert servo_bus.servo_domain(env) == bus
+
+
+@pytest.mark.parametrize('value, why', [('7', 'a domain of its own'), ('300', 'a ROS domain id'),
+                                        ('bus', 'a ROS domain id')])
+def test_servo_domain_refused_with_the_reason(value, why):
+    with pytest.raises(ValueError, match=why):
+        servo_bus.servo_domain({servo_bus.ENV: value, 'ROS_DOMAIN_ID': '7'})
+
+
+def _bridge(started: float) -> types.SimpleNamespace:
+    lines: list[str] = []
+    context = types.SimpleNamespace(get_domain_id=lambda: 58)
+    return types.SimpleNamespace(started=started, strangers=set(), log=lines.append,
+                                 lines=lines, servo=types.SimpleNamespace(context=context))
+
+
+BUS = [('_bridge_controller', '/'), ('_bridge_controller_calls', '/'), ('controller', '/'),
+       ('_bridge_plant', '/'), ('_bridge_plant_calls', '/'), ('plant', '/')]
+
+
+def test_a_node_of_another_system_on_the_bus_is_named_once():
+    """A node on the servo bus that is neither a bridge nor bridged (a test's publisher, another
+    system on that domain) is named in the log, once; the bridged pair is not."""
+    b = _bridge(started=-2 * STARTUP)
+    Bridge._strangers(b, BUS)
+    assert b.lines == []
+    Bridge._strangers(b, BUS + [('bad_encoders', '/test')])
+    Bridge._strangers(b, BUS + [('bad_encoders', '/test')])
+    assert len(b.lines) == 1 and '/test/bad_encoders' in b.lines[0] and 'domain 58' in b.lines[0]
+
+
+def test_nothing_is_judged_while_the_nodes_come_up():
+    """In the first STARTUP s a node may be seen before its bridge: no word then."""
+    import time
+    b = _bridge(started=time.monotonic())
+    Bridge._strangers(b, [('plant', '/')])
+    assert b.lines == []
