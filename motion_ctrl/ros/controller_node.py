@@ -26,6 +26,7 @@ its own so the servo tick only hands it over.
 """
 from __future__ import annotations
 
+import gc
 import math
 import os
 import queue
@@ -413,6 +414,11 @@ def spin(node) -> None:
     """
     executor = ros_env.executor()
     executor.add_node(node)
+    # What start-up made (imports, the node) stays: the cyclic collector's full passes would
+    # walk it all, ~20 ms with the servo thread held (first seen ~3 s after start, a
+    # FEEDBACK_FAULT or an amplifier-watchdog trip); frozen, they walk only what the loop makes.
+    gc.collect()
+    gc.freeze()
     stop: list[bool] = []
 
     def on_signal(*_):
