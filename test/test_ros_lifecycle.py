@@ -113,6 +113,30 @@ def test_spin_freezes_what_start_up_made(node_env):
     assert int(r.stdout.split()[0]) > 10000, r.stdout
 
 
+EARLY_SIGNAL = """
+import os, signal
+import rclpy
+from rclpy.signals import SignalHandlerOptions
+from motion_ctrl.ros.controller_node import spin, stop_on_signals
+stop_on_signals('early')               # as run() does before it makes the node
+os.kill(os.getpid(), signal.SIGINT)    # Ctrl-C while the node is still being made
+rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+node = rclpy.create_node('early')
+node.create_timer(0.01, lambda: print('ticked', flush=True))
+spin(node)
+print('left', flush=True)
+"""
+
+
+def test_a_signal_while_the_node_is_made_stops_it_cleanly(node_env):
+    """SIGINT before the node spins (a Ctrl-C or a bridge's stop during start-up): the node is
+    made, spins not once, leaves with exit code 0 and no traceback (was KeyboardInterrupt)."""
+    r = subprocess.run([sys.executable, '-c', EARLY_SIGNAL], capture_output=True, text=True,
+                       timeout=60, env=node_env)
+    assert (r.returncode, r.stdout.split()) == (0, ['left']), r.stdout + r.stderr
+    assert 'Traceback' not in r.stderr, r.stderr
+
+
 BAD_FILES = {
     # id: (node module, node name, YAML lines, parameter the message must name)
     'kp-negative': ('controller_node', 'controller', ['x.kp: -5.0'], 'x.kp'),

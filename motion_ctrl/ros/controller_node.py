@@ -419,17 +419,9 @@ def spin(node) -> None:
     # FEEDBACK_FAULT or an amplifier-watchdog trip); frozen, they walk only what the loop makes.
     gc.collect()
     gc.freeze()
-    stop: list[bool] = []
-
-    def on_signal(*_):
-        if not stop:
-            stop.append(True)
-            threading.Thread(target=_leave_if_stuck, args=(node.get_name(),),
-                             daemon=True).start()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+    stop_on_signals(node.get_name())
     try:
-        while not stop and rclpy.ok():
+        while not _stopped and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
     finally:
         safe = getattr(node, 'shutdown_outputs', None)
@@ -441,6 +433,21 @@ def spin(node) -> None:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+_stopped: list[bool] = []          # raised by SIGINT / SIGTERM once stop_on_signals ran
+
+
+def stop_on_signals(name: str) -> None:
+    """From now on SIGINT and SIGTERM only raise the stop flag that `spin` watches (and start
+    the stop deadline): a signal while the node is still being made ends it as cleanly as one
+    while it spins (it was a KeyboardInterrupt traceback)."""
+    def on_signal(*_):
+        if not _stopped:
+            _stopped.append(True)
+            threading.Thread(target=_leave_if_stuck, args=(name,), daemon=True).start()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
 
 
 def _leave_if_stuck(name: str) -> None:
@@ -470,6 +477,7 @@ def run(node_class, args=None) -> int:
                                   node_class.NODE_NAME, list(args or sys.argv))
     if bridged is not None:
         return bridged
+    stop_on_signals(node_class.NODE_NAME)
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override

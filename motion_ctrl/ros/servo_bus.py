@@ -90,11 +90,13 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         return None
     stop: list[int] = []
     started: list[subprocess.Popen] = []
+    # The node is told SIGTERM: it stops as on SIGINT once it runs, and while it still imports
+    # it ends without a word (SIGINT there is a KeyboardInterrupt traceback).
 
     def on_signal(sig, _frame):
         stop.append(sig)
         for node in started:         # at once: a Ctrl-C mid-move commands 0 V now
-            node.send_signal(signal.SIGINT)
+            node.send_signal(signal.SIGTERM)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     bus = _Bus.open(domain, *node_name(name, argv))
@@ -105,13 +107,13 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
                             env=servo_process_env(domain), preexec_fn=child_preexec)
     started.append(node)
     if stop:
-        node.send_signal(signal.SIGINT)
+        node.send_signal(signal.SIGTERM)
     try:
         bus.run(node, stop)
     finally:
         if node.poll() is None:
             if not stop:                          # (on a signal, on_signal sent it: once)
-                node.send_signal(signal.SIGINT)   # the node commands 0 V and disables first
+                node.send_signal(signal.SIGTERM)  # the node commands 0 V and disables first
             try:                                  # (the bridge still up while it says so)
                 node.wait(STOP_WAIT)
             except subprocess.TimeoutExpired:
