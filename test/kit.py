@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import pathlib
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -24,11 +23,8 @@ MOTOR_COUNT = 1 / MOTOR_COUNTS_PER_M   # one motor encoder count, in slide trave
 
 
 def spin_for(client, seconds: float) -> None:
-    """Run `client`'s callbacks for `seconds` of wall time, where the time is the point (cruise
-    a while, record a while, let a stamp pass); to wait for something, spin_until it."""
-    end = time.monotonic() + seconds
-    while (left := end - time.monotonic()) > 0:
-        client.executor_.spin_once(timeout_sec=min(0.01, left))
+    """`client.spin_for(seconds)` (SlideClient): the time is the point, not a condition."""
+    client.spin_for(seconds)
 
 
 @dataclass

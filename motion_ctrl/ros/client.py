@@ -70,6 +70,13 @@ class SlideClient(Node):
                 self.done_at = time.time()
         self.status[axis] = msg.data
 
+    def spin_for(self, seconds: float) -> None:
+        """Run the callbacks for `seconds` of wall time, where the time is the point (cruise a
+        while, let the latest samples arrive); to wait for something, spin_until it."""
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            self.executor_.spin_once(timeout_sec=min(0.01, left))
+
     def spin_until(self, predicate, timeout: float) -> bool:
         end = time.monotonic() + timeout
         while time.monotonic() < end:

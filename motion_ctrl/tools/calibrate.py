@@ -397,7 +397,7 @@ def axis_session(args, tool: str, services: bool = False):
             # the plant reading `command`, and a moment for the controller's side of the match.
             import msg_defs as md
             client.spin_until(lambda: client.count_subscribers(md.COMMAND) > 0, 20.0)
-            client.spin_until(lambda: False, 1.0)
+            client.spin_for(1.0)
         yield client, AxisUnderTest(client, args.axis), out
     finally:
         client.destroy_node()

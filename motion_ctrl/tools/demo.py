@@ -53,13 +53,13 @@ def main(argv=None) -> int:
         for label, target in (('1 in forward', INCH), ('+2 in', 2 * INCH),
                               ('back to +1 in (reversal)', INCH)):
             t = client.move({'x': target}, timeout=5.0)
-            client.spin_until(lambda: False, 0.05)      # latest truth after the event
+            client.spin_for(0.05)      # latest truth after the event
             err = (client.load_position() - target) * LOAD_COUNTS_PER_M
             when = f'{t * 1000:.0f}' if t is not None else 'timeout'
             print(f'{label:<28}{target:>12.4f}{err:>+22.2f}{when:>18}')
             if t is None:
                 code = 1
-        client.spin_until(lambda: False, 0.3)
+        client.spin_for(0.3)
     finally:
         if recorder is not None:
             recorder.stop()

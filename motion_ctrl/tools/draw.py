@@ -170,7 +170,7 @@ def main(argv=None) -> int:
             t0 = time.time()
             done = client.follow(list(AXES), points.times, points.positions, points.velocities,
                                  points.accelerations) is not None
-            client.spin_until(lambda: False, 0.1)
+            client.spin_for(0.1)
             samples = np.array(truth).reshape(-1, 3)
             if not done or len(samples) == 0:
                 print(f'{shape:<8}did not finish (see the logs in {out})')

@@ -131,7 +131,7 @@ class Soak:
                 c.call('enable', True)
             except TimeoutError as e:       # counted; the next move tells whether it recovered
                 self.faults.append(f'reset / enable unanswered ({e})')
-            c.spin_until(lambda: False, 0.2)
+            c.spin_for(0.2)
             return
         err = (c.load_position(self.axis) - self.target) * LOAD_COUNTS_PER_M
         self.errors.append(err)
