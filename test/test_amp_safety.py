@@ -120,9 +120,14 @@ def _cruise(client):
 
 
 def _after_stop(client, t_stop: float) -> dict:
-    """Spin 1 s, then measure from t_stop on: time to 0 V (from the stop and from the last
-    command the plant could have had), travel, time to rest."""
-    spin_for(client, 1.0)
+    """Once the truth and the amplifier output are in for 1 s past t_stop (waited for: through
+    a bridge on a loaded machine the copies lag), measure from t_stop on: time to 0 V (from the
+    stop and from the last command the plant could have had), travel, time to rest."""
+    def covered() -> bool:
+        amp = client.raw[md.AMPLIFIER_STATES]
+        return bool(client.truth_log and client.truth_log[-1][0] > t_stop + 1.0 and amp
+                    and _stamp(deserialize_message(amp[-1], JointState)) > t_stop + 1.0)
+    assert client.spin_until(covered, 10.0), 'no truth or amplifier output 1 s past the stop'
     truth = client.truth_log
     before = [s for s in truth if s[0] <= t_stop]
     after = [s for s in truth if s[0] > t_stop]
