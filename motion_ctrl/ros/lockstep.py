@@ -96,6 +96,9 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
                 executor.spin_once(timeout_sec=0.01)
         return predicate()
 
+    def spin_for(seconds) -> None:
+        spin_until(lambda: False, seconds)     # the time is the point: no condition to meet
+
     plant = None
     # The controller first, and its target: with no encoder sample it does not tick, and its
     # sim clock stands at 0, so a target stamped `start` is scheduled for that sim time. Then
@@ -106,11 +109,11 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     try:
         if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
             raise RuntimeError('controller not discovered')
-        spin_until(lambda: False, 0.5)     # the controller's side of the match, too
+        spin_for(0.5)                      # the controller's side of the match, too
         stamp = JointState().header.stamp
         stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
         pub_target.publish(md.joint_state(stamp, ['x'], [target]))
-        spin_until(lambda: False, 0.2)
+        spin_for(0.2)
         plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1},
                             log_file(log_dir, 'plant'), env=env)
         if not spin_until(lambda: raw, 30.0):
