@@ -174,15 +174,20 @@ class SlideClient(Node):
         marks = {a: len(self.status_log[a]) for a in axes}
         t0 = time.monotonic()
         publisher.publish(msg)
+        return self.wait_moves(marks, t0, timeout)
 
+    def wait_moves(self, marks: dict, t0: float, timeout: float):
+        """Wait until every axis of `marks` ({axis: index into status_log}) has cleared and
+        raised MOTION_DONE since its mark; returns seconds from `t0` (time.monotonic) to the
+        last MOTION_DONE, or None on timeout or on a fault in the words since the marks."""
         def faulted():
-            return any(w & FAULTS for a in axes for _, w in self.status_log[a][marks[a]:])
+            return any(w & FAULTS for a, m in marks.items() for _, w in self.status_log[a][m:])
         if not self.spin_until(
-                lambda: faulted() or all(self.move_done(a, marks[a]) for a in axes),
+                lambda: faulted() or all(self.move_done(a, m) for a, m in marks.items()),
                 timeout) or faulted():
             return None
         last = max(next(t for t, w in reversed(self.status_log[a]) if w & Status.MOTION_DONE)
-                   for a in axes)
+                   for a in marks)
         return last - t0
 
     def load_position(self, axis='x') -> float:

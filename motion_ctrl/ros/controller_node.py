@@ -421,7 +421,7 @@ def spin(node) -> None:
     gc.freeze()
     stop_on_signals(node.get_name())
     try:
-        while not _stopped and rclpy.ok():
+        while not _stopped.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
     finally:
         safe = getattr(node, 'shutdown_outputs', None)
@@ -435,7 +435,7 @@ def spin(node) -> None:
         rclpy.try_shutdown()
 
 
-_stopped: list[bool] = []          # raised by SIGINT / SIGTERM once stop_on_signals ran
+_stopped = threading.Event()       # set by SIGINT / SIGTERM once stop_on_signals ran
 
 
 def stop_on_signals(name: str) -> None:
@@ -443,8 +443,8 @@ def stop_on_signals(name: str) -> None:
     the stop deadline): a signal while the node is still being made ends it as cleanly as one
     while it spins (it was a KeyboardInterrupt traceback)."""
     def on_signal(*_):
-        if not _stopped:
-            _stopped.append(True)
+        if not _stopped.is_set():
+            _stopped.set()
             threading.Thread(target=_leave_if_stuck, args=(name,), daemon=True).start()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)

@@ -25,6 +25,9 @@ from motion_ctrl.ros.processes import NodeProcess, log_file, params_dir
 # earlier run's last samples from them (a stale /clock ended a run at once). Lost UDP datagrams
 # cost nothing here: the plant resends a sample without answer.
 UDP_ONLY = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
+# The lockstep overrides: the plant is the clock, the controller ticks on its sim time.
+CONTROLLER = {'use_sim_time': 'true'}
+PLANT = {'lockstep': 1}
 
 
 def udp_context(domain: int):
@@ -50,8 +53,8 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
     """Plant (the clock) and controller (on its sim time) as two processes on loopback UDP
     (processes.start_slide with the lockstep overrides); returns (plant, controller). The sim
     runs as soon as they have found each other: the plant resends its sample until answered."""
-    return processes.start_slide((controller_params or {}) | {'use_sim_time': 'true'},
-                                 (plant_params or {}) | {'lockstep': 1}, log_dir,
+    return processes.start_slide((controller_params or {}) | CONTROLLER,
+                                 (plant_params or {}) | PLANT, log_dir,
                                  env=dict(os.environ if env is None else env) | UDP_ONLY)
 
 
@@ -104,7 +107,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     # sim clock stands at 0, so a target stamped `start` is scheduled for that sim time. Then
     # the plant: the sim runs as soon as plant and controller have found each other (the
     # plant resends t = 0 until then); this observer usually sees it from the first samples.
-    controller = NodeProcess('controller_node', d / 'controller.yaml', {'use_sim_time': 'true'},
+    controller = NodeProcess('controller_node', d / 'controller.yaml', CONTROLLER,
                              log_file(log_dir, 'controller'), env=env)
     try:
         if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
@@ -114,8 +117,8 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
         stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
         pub_target.publish(md.joint_state(stamp, ['x'], [target]))
         spin_for(0.2)
-        plant = NodeProcess('plant_node', d / 'plant.yaml', {'lockstep': 1},
-                            log_file(log_dir, 'plant'), env=env)
+        plant = NodeProcess('plant_node', d / 'plant.yaml', PLANT, log_file(log_dir, 'plant'),
+                            env=env)
         if not spin_until(lambda: raw, 30.0):
             raise RuntimeError('lockstep plant not discovered')
         if not spin_until(lambda: sim_time() >= end, timeout):

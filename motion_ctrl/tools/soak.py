@@ -106,25 +106,21 @@ class Soak:
 
     def move(self) -> None:
         from msg_defs.status import Status
+        from motion_ctrl.ros.client import FAULTS
         c = self.client
         self.target = self.distance if self.target == 0.0 else 0.0
         mark, t0 = len(c.status_log[self.axis]), time.monotonic()
         took = c.move({self.axis: self.target}, timeout=5.0)
         self.moves += 1
-        faults = Status.FEEDBACK_FAULT | Status.FOLLOWING_ERROR_FATAL
-
-        def faulted() -> bool:
-            return any(w & faults for _, w in c.status_log[self.axis][mark:])
-        # Not seen to end in 5 s, and no fault seen: the loop may be done and its status words
-        # still on their way through a loaded machine's bridge (README, the servo bus). Wait
-        # for them and count the move as seen late, apart from the faults.
-        if took is None and not faulted() and c.spin_until(
-                lambda: faulted() or c.move_done(self.axis, mark), LATE_WAIT) \
-                and not faulted():
-            took = time.monotonic() - t0
-            self.late.append(took)
+        if took is None:
+            # Not seen to end in 5 s: if no fault came, the loop may be done and its status
+            # words still on their way through a loaded machine's bridge (README, the servo
+            # bus). Wait for them and count the move as seen late, apart from the faults.
+            took = c.wait_moves({self.axis: mark}, t0, LATE_WAIT)
+            if took is not None:
+                self.late.append(took)
         word = c.status[self.axis] or 0
-        if took is None or word & faults:
+        if took is None or word & FAULTS:
             self.faults.append(repr(Status(word)))
             try:
                 c.call('reset')
