@@ -45,20 +45,23 @@ class Slide:
 def running_slide(log_dir, make_client: Callable[[], Any], controller_params: dict | None = None,
                   plant_params: dict | None = None, *, client_first: bool = False,
                   ready: Callable[[Any], bool] | None = None, timeout: float = 30.0,
-                  exit_zero: bool = False) -> Iterator[Slide]:
+                  exit_zero: bool = False, plant_env: dict | None = None) -> Iterator[Slide]:
     """Plant and controller as processes (motion_ctrl.ros.processes.start_slide: the params
     files plus these overrides, logs in `log_dir`) and the client `make_client()` makes (before
     the nodes with client_first: a reader joining later holds the plant's streams up, see
-    conftest.slow_watchdog); yields when the client sees the slide ready (SlideClient.wait_ready,
-    then `ready(client)` if given), else fails with what was missing and the nodes' logs.
+    conftest.slow_watchdog); yields when the client sees the slide ready
+    (SlideClient.wait_ready, then `ready(client)` if given), else fails with what was missing
+    and the nodes' logs.
 
-    At the end the client goes and both nodes stop with SIGINT; exit_zero: both must exit 0.
+    `plant_env`: added to the plant's environment (start_slide). At the end the client goes and
+    both nodes stop with SIGINT; exit_zero: both must exit 0.
     The nodes inherit this process's environment: the module's ROS domain (conftest
     module_domain), or the test's (own_domain)."""
     from motion_ctrl.ros.processes import start_slide
     log_dir = pathlib.Path(log_dir)
     client = make_client() if client_first else None
-    plant, controller = start_slide(controller_params, plant_params, log_dir=log_dir)
+    plant, controller = start_slide(controller_params, plant_params, log_dir=log_dir,
+                                    plant_env=plant_env)
     slide = Slide(plant, controller, client, log_dir)
     try:
         if client is None:

@@ -2,21 +2,31 @@
 `target_position`, the true slide read from `plant_states`, the status word from `x/status`."""
 import pytest
 
+from motion_ctrl.ros import servo_bus
+
 from kit import COUNT, INCH, running_slide, spin_for
 from msg_defs.status import Status
 from motion_ctrl.ros.client import SlideClient
 
 
 @pytest.fixture
-def slide(rclpy_session, tmp_path, request, slow_watchdog):
-    feedback = request.param
+def slide(rclpy_session, tmp_path, request, slow_watchdog, monkeypatch):
+    feedback, *plant = request.param.split(',')
+    if plant:
+        # 'foreign': the controller on the servo bus, the plant off it, answering on the user's
+        # domain as a plant of another make does; the controller's bridge carries its streams
+        # (ros.bridge).
+        monkeypatch.setenv(servo_bus.ENV, 'auto')
     with running_slide(tmp_path, lambda: SlideClient(name=f'headline_{feedback}'),
-                       slow_watchdog | {'x.feedback': feedback}, exit_zero=True) as s:
+                       slow_watchdog | {'x.feedback': feedback}, exit_zero=True,
+                       plant_env={servo_bus.ENV: 'off'} if plant else None) as s:
         yield s.client
+        if plant:
+            assert 'copied in' in s.log('controller'), s.log('controller')
 
 
 @pytest.mark.timeout(120)
-@pytest.mark.parametrize('slide', ['dual', 'sampled'], indirect=True)
+@pytest.mark.parametrize('slide', ['dual', 'sampled', 'dual,foreign'], indirect=True)
 def test_one_inch_after_a_reversal_lands_within_a_count(slide):
     assert slide.move({'x': 2 * INCH}, timeout=10.0) is not None, \
         f'no MOTION_DONE, status {Status(slide.status["x"])!r}'

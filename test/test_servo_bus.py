@@ -27,7 +27,8 @@ def test_servo_domain_refused_with_the_reason(value, why):
 def _bridge(started: float) -> types.SimpleNamespace:
     lines: list[str] = []
     context = types.SimpleNamespace(get_domain_id=lambda: 58)
-    return types.SimpleNamespace(started=started, strangers=set(), log=lines.append,
+    return types.SimpleNamespace(started=started, strangers=set(), suspects=set(),
+                                 log=lines.append,
                                  lines=lines, servo=types.SimpleNamespace(context=context))
 
 
@@ -42,6 +43,8 @@ def test_a_node_of_another_system_on_the_bus_is_named_once():
     Bridge._strangers(b, BUS)
     assert b.lines == []
     Bridge._strangers(b, BUS + [('bad_encoders', '/test')])
+    assert b.lines == []                 # (a node may be seen a look before its bridge)
+    Bridge._strangers(b, BUS + [('bad_encoders', '/test')])
     Bridge._strangers(b, BUS + [('bad_encoders', '/test')])
     assert len(b.lines) == 1 and '/test/bad_encoders' in b.lines[0] and 'domain 58' in b.lines[0]
 
@@ -52,3 +55,23 @@ def test_nothing_is_judged_while_the_nodes_come_up():
     b = _bridge(started=time.monotonic())
     Bridge._strangers(b, [('plant', '/')])
     assert b.lines == []
+
+
+def test_a_stream_published_by_a_node_off_the_bus_is_foreign():
+    """The servo streams are copied in from the user's domain only when a node that is not a
+    bridge publishes them there (a plant of another make); a bridge's copy out is not, nor an
+    endpoint whose node is not known yet."""
+    user_side = [('controller', '/'), ('_bridge_controller_in', '/'), ('plant', '/'),
+                 ('_bridge_plant_in', '/')]
+
+    def bridge(*publishers, nodes=user_side):
+        infos = [types.SimpleNamespace(node_name=n, node_namespace=ns) for n, ns in publishers]
+        return types.SimpleNamespace(public=types.SimpleNamespace(
+            get_publishers_info_by_topic=lambda topic: infos,
+            get_node_names_and_namespaces=lambda: nodes))
+    assert not Bridge._foreign_publisher(bridge(), '/encoders')
+    assert not Bridge._foreign_publisher(bridge(('plant', '/')), '/encoders')
+    assert not Bridge._foreign_publisher(bridge(('_NODE_NAME_UNKNOWN_', '/')), '/encoders')
+    assert Bridge._foreign_publisher(bridge(('plant', '/'), nodes=user_side[:2] + [('plant', '/')]),
+                                     '/encoders')
+    assert Bridge._foreign_publisher(bridge(('plant', '/'), ('drive', '/x')), '/encoders')

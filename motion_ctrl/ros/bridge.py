@@ -5,12 +5,16 @@ The bridge, in the process the user started, gives the user's domain a node of t
 with the same interface, by reading the node's endpoints from the servo bus's graph:
 
 * every topic the node publishes is published under the same name and reliability, its
-  samples copied as bytes (no deserialisation). A latched (transient local) topic keeps its
-  last sample for late joiners; the others are copied only while somebody on the user's
-  domain subscribes (checked every `POLL` s), so a servo stream nobody watches costs nothing;
-* every topic the node subscribes to is copied the other way, except the servo streams
+  samples copied as bytes (no deserialisation). A latched (transient local) topic of the node's
+  own keeps its last sample for late joiners; the others (`/rosout` among them) are copied only
+  while somebody on the user's domain subscribes (checked every `POLL` s), so a servo stream
+  nobody watches costs nothing;
+* every topic the node subscribes to is copied the other way, in order. The servo streams
   (`SERVO_TOPICS`: `encoders`, `command`, `/clock`), which plant and controller exchange on the
-  servo bus only: a second copy would reach the loop late and twice;
+  servo bus, are copied in only once a node that is not a bridge publishes them on the user's
+  domain: a plant (or controller) of another make, which does not join the bus, or a test's
+  publisher. The bridges' own copies out are never copied back (a second copy would reach the
+  loop late and twice);
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
   unchanged) is answered by calling the node's service and returning its response.
 
@@ -26,7 +30,7 @@ from __future__ import annotations
 import importlib
 import time
 
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.client import Client
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -40,6 +44,7 @@ POLL = 0.1                   # s between looks for readers on the user's side
 GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after STARTUP s
 STARTUP, STARTUP_POLL = 5.0, 0.25   # s: the node's endpoints appear over its first seconds
 SERVICE_TIMEOUT = 10.0       # s a forwarded request waits for the node's answer
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'   # rmw's name for an endpoint whose node is not known yet
 STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
 
 
@@ -97,6 +102,8 @@ class _Outward:
 
     def __init__(self, bridge: Bridge, topic: str, type_name: str, msg_type, info):
         self.bridge, self.topic, self.msg_type = bridge, topic, msg_type
+        # (a servo stream read on a node and thread of its own: nothing queues in front of it)
+        self.reader = bridge.servo_out if topic in SERVO_TOPICS else bridge.servo
         self.qos = outward_qos(info)
         self.latched = self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
         self.pub = bridge.public.create_publisher(msg_type, topic, self.qos)
@@ -115,24 +122,31 @@ class _Outward:
         """A latched topic is copied always (a late joiner wants it at once), a stream while
         it has readers on the user's side; read as the node publishes it (a recording through
         the bridge loses nothing the node's history of a second still holds) and all on one
-        thread, so that a recording has the status words in order with the streams."""
-        wanted = self.latched or self.pub.get_subscription_count() > 0
+        thread, so that a recording has the status words in order with the streams.
+
+        A topic both nodes publish (`/rosout`, latched) is read only while wanted too: a reader
+        of it here makes the other node's every log line a send to this process, and once this
+        process is SIGKILLed such a send waits on its dead shared-memory port (the plant was
+        seen held up 1 s, then 2 s, logging its amplifier fault after its controller's bridge
+        was killed)."""
+        wanted = ((self.latched and self.own is None)
+                  or self.pub.get_subscription_count() > 0)
         if wanted and self.sub is None:
             # (a latched topic's every change: a status word's MOTION_DONE cleared and raised)
             qos = QoSProfile(depth=10 if self.latched else self.qos.depth,
                              reliability=self.qos.reliability, durability=self.qos.durability)
-            self.sub = self.bridge.servo.create_subscription(
+            self.sub = self.reader.create_subscription(
                 self.msg_type, self.topic, self._copy, qos, raw=self.own is None)
         elif not wanted and self.sub is not None:
-            self.bridge.servo.destroy_subscription(self.sub)
+            self.reader.destroy_subscription(self.sub)
             self.sub = None
 
 
 class Bridge:
     """Mirror node `name` in `namespace` of the servo bus (context `servo_ctx`) onto the user's
     domain (context `public_ctx`). Call `poll()` every POLL s on `servo`'s executor; spin
-    `public`, `servo` and `calls` on executors of their own (a service waits for `calls` on
-    `public`'s, so not on one thread)."""
+    `public`, `servo`, `calls`, `servo_in` and `servo_out` on executors of their own (a service
+    waits for `calls` on `public`'s, so not on one thread; a servo stream waits for nothing)."""
 
     def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, log=print):
         self.name, self.namespace = name, namespace
@@ -149,6 +163,10 @@ class Bridge:
         # The service clients on a node (and executor) of their own: a response must not wait
         # behind a queue of stream samples to copy.
         self.calls = node(f'_bridge_{name}_calls', servo_ctx)
+        # The servo streams of a plant or controller of another make (`look`): read on nodes of
+        # their own, each on one thread (in order, behind nothing else).
+        self.servo_in = node(f'_bridge_{name}_in', public_ctx)
+        self.servo_out = node(f'_bridge_{name}_out', servo_ctx)
         self.group = ReentrantCallbackGroup()
         self.outward: dict[str, _Outward] = {}
         self.inward: set[str] = set()            # topics copied in
@@ -156,6 +174,7 @@ class Bridge:
         self.skipped: set[str] = set()           # names whose type is not installed here
         self.dropping: set[str] = set()          # topics that lost a sample (logged once)
         self.strangers: set[str] = set()         # foreign nodes seen on the bus (logged once)
+        self.suspects: set[str] = set()          # ... and seen unbridged in the last look
         self.started = time.monotonic()
         self.next_look = 0.0
 
@@ -192,7 +211,8 @@ class Bridge:
             if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
         for topic, types in self.servo.get_subscriber_names_and_types_by_node(self.name, ns):
-            if topic in self.inward or topic in SERVO_TOPICS:
+            if topic in self.inward or (topic in SERVO_TOPICS
+                                        and not self._foreign_publisher(topic)):
                 continue
             mine = [i for i in self.servo.get_subscriptions_info_by_topic(topic)
                     if i.node_name == self.name and i.node_namespace == ns]
@@ -201,10 +221,16 @@ class Bridge:
                 continue
             qos = inward_qos(mine[0])
             out = self.servo.create_publisher(msg_type, topic, qos)
-            self.public.create_subscription(
+            # (a group per topic: its samples copied one at a time, in the order they came)
+            reader = self.servo_in if topic in SERVO_TOPICS else self.public
+            reader.create_subscription(
                 msg_type, topic, lambda data, out=out: out.publish(data), qos, raw=True,
-                callback_group=self.group)
+                callback_group=MutuallyExclusiveCallbackGroup())
             self.inward.add(topic)
+            if topic in SERVO_TOPICS:
+                self.log(f'bridge: {topic} is published on the user\'s domain by a node that '
+                         f'is not on the servo bus: copied in (a hop more of latency, and '
+                         f'what joins the user\'s domain can hold it up)')
         for service, types in self.servo.get_service_names_and_types_by_node(self.name, ns):
             if service in self.services:
                 continue
@@ -216,6 +242,18 @@ class Bridge:
                 srv_type, service, self._forward(client, service), callback_group=self.group)
             self.services.add(service)
 
+    def _foreign_publisher(self, topic: str) -> bool:
+        """Whether a node on the user's domain that is not a bridge publishes `topic` there. A
+        bridge's participant there holds `_bridge_<name>_in` beside `<name>`, and a participant's
+        node names arrive together, so this does not depend on what the bus's discovery has
+        seen yet (a restarted peer's bridge was once taken for a plant of another make)."""
+        nodes = self.public.get_node_names_and_namespaces()
+        bridges = {(n[len('_bridge_'):-len('_in')], ns) for n, ns in nodes
+                   if n.startswith('_bridge_') and n.endswith('_in')}
+        return any((i.node_name, i.node_namespace) not in bridges
+                   and i.node_name != UNKNOWN_NODE          # (its names not in yet: next look)
+                   for i in self.public.get_publishers_info_by_topic(topic))
+
     def _strangers(self, nodes: list[tuple[str, str]]) -> None:
         """Say so (once per node) when the servo bus holds a node that is neither a bridge nor
         bridged: another system on the bus's domain, whose participants the loop's streams now
@@ -223,14 +261,15 @@ class Bridge:
         if time.monotonic() < self.started + STARTUP:
             return               # (a node and its bridge are discovered in either order)
         names = {n for n, _ in nodes}
-        for n, ns in nodes:
-            fqn = ns.rstrip('/') + '/' + n
-            if (n.startswith('_bridge_') or f'_bridge_{n}' in names or fqn in self.strangers):
-                continue
+        unbridged = {ns.rstrip('/') + '/' + n for n, ns in nodes
+                     if not n.startswith('_bridge_') and f'_bridge_{n}' not in names}
+        # (in two looks running: a restarted peer and its bridge are discovered in either order)
+        for fqn in sorted(unbridged & self.suspects - self.strangers):
             self.strangers.add(fqn)
             self.log(f'bridge: {fqn} is on the servo bus (domain '
                      f'{self.servo.context.get_domain_id()}) and not bridged: another system '
                      f'on this domain? Its participants can hold up the loop')
+        self.suspects = unbridged
 
     def _type(self, name: str, types: list[str]):
         t = interface_type(types[0]) if types else None
@@ -255,5 +294,5 @@ class Bridge:
             self.log(f'bridge: {topic}: a sample not passed on ({e}); later ones not logged')
 
     def destroy(self) -> None:
-        for node in (self.public, self.servo, self.calls):
+        for node in (self.public, self.servo, self.calls, self.servo_in, self.servo_out):
             node.destroy_node()

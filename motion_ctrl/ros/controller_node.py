@@ -441,29 +441,19 @@ _stopped = threading.Event()       # set by SIGINT / SIGTERM once stop_on_signal
 def stop_on_signals(name: str) -> None:
     """From now on SIGINT and SIGTERM only raise the stop flag that `spin` watches (and start
     the stop deadline): a signal while the node is still being made ends it as cleanly as one
-    while it spins (it was a KeyboardInterrupt traceback)."""
+    while it spins (it was a KeyboardInterrupt traceback).
+
+    The deadline (ros_env.leave_if_stuck, STOP_DEADLINE): once in a CI run a plant given
+    SIGTERM was still there 5 s later (not reproduced in 65 tries, idle or loaded). The outputs
+    are made safe first (`shutdown_outputs`, and the plant's command watchdog behind it); what
+    is left, ROS's teardown of the node and its DDS participant, must not keep a stopped node
+    alive."""
     def on_signal(*_):
         if not _stopped.is_set():
             _stopped.set()
-            threading.Thread(target=_leave_if_stuck, args=(name,), daemon=True).start()
+            ros_env.leave_if_stuck(name, STOP_DEADLINE)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
-
-
-def _leave_if_stuck(name: str) -> None:
-    """Exit STOP_DEADLINE s after a stop signal if the node has not gone by then.
-
-    Fix: once in a CI run a plant given SIGTERM was still there 5 s later (not reproduced in 65
-    tries, idle or loaded). The outputs are made safe first (`shutdown_outputs`, and the plant's
-    command watchdog behind it); what is left, ROS's teardown of the node and its DDS
-    participant, must not keep a stopped node alive. Where it was stuck goes to stderr."""
-    time.sleep(STOP_DEADLINE)
-    import faulthandler
-    print(f'{name}: stop took over {STOP_DEADLINE:g} s (ROS teardown stuck); leaving without '
-          f'it. Threads at that moment:', file=sys.stderr, flush=True)
-    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
-    sys.stderr.flush()
-    os._exit(0)
 
 
 def run(node_class, args=None) -> int:

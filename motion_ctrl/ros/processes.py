@@ -100,14 +100,17 @@ def log_file(log_dir, node: str) -> pathlib.Path | None:
 
 
 def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
-                log_dir=None, params_files: bool = True, env: dict | None = None):
+                log_dir=None, params_files: bool = True, env: dict | None = None,
+                plant_env: dict | None = None):
     """Plant and controller with the default params files (which set the registers of axis x;
     params_files=False: the register table's defaults, the same values, for any axis names)
-    plus overrides, in `env` (default: this process's environment); returns both."""
+    plus overrides, in `env` (default: this process's environment), the plant with `plant_env`
+    added (e.g. MOTION_CTRL_SERVO_DOMAIN=off: off the servo bus, as a plant of another make);
+    returns both."""
     d = params_dir()
     file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
     plant = NodeProcess('plant_node', file('plant'), plant_params, log_file(log_dir, 'plant'),
-                        env=env)
+                        env=dict(os.environ if env is None else env) | (plant_env or {}))
     controller = NodeProcess('controller_node', file('controller'), controller_params,
                              log_file(log_dir, 'controller'), env=env)
     return plant, controller

@@ -11,6 +11,9 @@ import fcntl
 import itertools
 import os
 import re
+import sys
+import threading
+import time
 
 
 def local_discovery() -> None:
@@ -144,3 +147,19 @@ def _locked(path: str) -> bool:
         return False
     except OSError:
         return True
+
+
+def leave_if_stuck(name: str, after: float, code: int = 0, why: str = 'stop') -> None:
+    """Start a daemon thread that exits this process with `code` `after` s from now if it is
+    still here, saying so and where every thread was (faulthandler) on stderr: ROS's teardown
+    of a node and its DDS participant (rclpy's EventsExecutor.shutdown() was seen stuck) must
+    not keep a process alive whose work is done."""
+    def leave():
+        time.sleep(after)
+        import faulthandler
+        print(f'{name}: {why} took over {after:g} s (ROS teardown stuck); leaving without it. '
+              f'Threads at that moment:', file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stderr.flush()
+        os._exit(code)
+    threading.Thread(target=leave, daemon=True).start()

@@ -14,8 +14,9 @@ the bridge, and a tool can hold up only that.
 MOTION_CTRL_SERVO_DOMAIN chooses the bus: `auto`, the domain 50 above ROS_DOMAIN_ID (wrapping in
 1..101, as motion_ctrl's own domains do, below Linux's ephemeral ports); a number, that domain
 (plant and controller must agree); unset or `off`, no bus: the node runs on the user's domain
-itself, as a plant of another make that answers on the topics there needs. Opt-in for now
-(README Notes: on two loaded cores the bridges' copies of the streams fall behind).
+itself. A plant (or controller) of another make answers on the user's domain; with the bus the
+bridge copies its stream in and the node's out (bridge.py), a hop more each way. Opt-in for now
+(README, "The servo bus": on two loaded cores the suite is not yet clean with it).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ import time
 ENV = 'MOTION_CTRL_SERVO_DOMAIN'
 INSIDE = 'MOTION_CTRL_SERVO_PROCESS'     # set in the node's own process on the bus
 STOP_WAIT = 10.0                         # s the node gets to command 0 V and leave
+STOP_WAIT_BRIDGE = 3.0                   # s the bridge gets to close after its node has gone
 # The bridge's DDS threads on the bus run above every normally scheduled thread, so a node at
 # real-time priority never waits on a bridge's shared-memory port whose listener a busy machine
 # left off the CPU holding its lock; its Python threads (the copies, the user's side) do not.
@@ -119,9 +121,13 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
             except subprocess.TimeoutExpired:
                 node.kill()
                 node.wait()
+        rc = node.returncode if node.returncode >= 0 else 128 - node.returncode
+        # (its node gone, the bridge leaves with its code even if ROS's teardown hangs: seen
+        # once in eight bridges started at once)
+        from motion_ctrl.ros import ros_env
+        ros_env.leave_if_stuck(name, STOP_WAIT_BRIDGE, rc, 'closing the bridge')
         bus.close()
-    rc = node.returncode
-    return rc if rc >= 0 else 128 - rc
+    return rc
 
 
 class _Bus:
@@ -149,12 +155,14 @@ class _Bus:
                 f'[{name}] {m}', file=sys.stderr, flush=True))
         # The servo side copies every watched stream sample: the lighter executor (ros_env).
         self.executors = [ros_env.executor(servo_ctx), SingleThreadedExecutor(context=servo_ctx),
-                          MultiThreadedExecutor(num_threads=4, context=public_ctx)]
+                          MultiThreadedExecutor(num_threads=4, context=public_ctx),
+                          ros_env.executor(public_ctx), ros_env.executor(servo_ctx)]
         # The bridge looks at the graph on the servo side's thread: rclpy entities are made and
         # destroyed safely only on the thread of the executor that waits on them.
         self.bridge.servo.create_timer(POLL, self.bridge.poll)
-        for executor, node in zip(self.executors, (self.bridge.servo, self.bridge.calls,
-                                                    self.bridge.public)):
+        for executor, node in zip(self.executors, (
+                self.bridge.servo, self.bridge.calls, self.bridge.public, self.bridge.servo_in,
+                self.bridge.servo_out)):
             executor.add_node(node)
         self.running = True
         self.threads = [threading.Thread(target=self._spin, args=(e,), daemon=True)
