@@ -25,9 +25,14 @@ from motion_ctrl.ros.processes import NodeProcess, log_file, params_dir
 # earlier run's last samples from them (a stale /clock ended a run at once). Lost UDP datagrams
 # cost nothing here: the plant resends a sample without answer.
 UDP_ONLY = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
-# The lockstep overrides: the plant is the clock, the controller ticks on its sim time.
-CONTROLLER = {'use_sim_time': 'true'}
-PLANT = {'lockstep': 1}
+# The lockstep overrides: the plant is the clock, the controller ticks on its sim time; both at
+# normal scheduling, since they run flat out (at real-time priority they would starve the rest).
+CONTROLLER = {'use_sim_time': 'true', 'realtime_priority': 0}
+PLANT = {'lockstep': 1, 'realtime_priority': 0}
+# The nodes' environment: no servo bus (ros.servo_bus), which keeps the loop clear of what joins
+# the user's domain; in lockstep a stall holds up the sim time, not the loop, and the bridges'
+# copies would only slow the run.
+NODE_ENV = UDP_ONLY | {'MOTION_CTRL_SERVO_DOMAIN': 'off'}
 
 
 def udp_context(domain: int):
@@ -55,7 +60,7 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
     runs as soon as they have found each other: the plant resends its sample until answered."""
     return processes.start_slide((controller_params or {}) | CONTROLLER,
                                  (plant_params or {}) | PLANT, log_dir,
-                                 env=dict(os.environ if env is None else env) | UDP_ONLY)
+                                 env=dict(os.environ if env is None else env) | NODE_ENV)
 
 
 def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
@@ -68,7 +73,7 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     """
     d = params_dir()
     domain = ros_env.spare_domain()
-    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | UDP_ONLY
+    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | NODE_ENV
     context = udp_context(domain)
     # The observer is the third process on two cores: it must not slow the loop it watches.
     # It takes plant_states raw (no Python message per sample) and decodes them after the

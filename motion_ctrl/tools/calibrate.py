@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import pathlib
 import sys
 import time
@@ -369,24 +368,27 @@ def axis_session(args, tool: str, services: bool = False):
     AxisUnderTest, out); stops everything after. Raises CalibrationError when the controller
     is not ready."""
     from motion_ctrl.ros import ros_env
-    ros_env.private_domain()
+    domain = ros_env.private_domain()
     import datetime
     import rclpy
     from motion_ctrl.ros.client import SlideClient
     out = pathlib.Path(args.out or datetime.datetime.now().strftime(
         f'out/{tool}-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
-    if args.lockstep:
-        from motion_ctrl.ros.lockstep import UDP_ONLY
-        os.environ.update(UDP_ONLY)                             # as the spawned nodes
     # The nodes first, then this participant (as the demo): a client that was there before
     # the nodes started saw the first move end in FOLLOWING_ERROR_FATAL, 3 runs of 3 (not
     # understood; README Notes). Its readers joining a running controller can stall the
     # controller's publishers for a moment (a newcomer's shared-memory port, README Notes): the
     # spawned controller has a wide feedback_timeout for that (SPAWN_CONTROLLER).
     nodes = _spawn(args, out) if args.spawn else ()
-    rclpy.init()
-    client = SlideClient(axes=(args.axis,), name=tool, truth=False, services=services)
+    if args.lockstep:                  # (loopback UDP, as the spawned nodes: lockstep.py)
+        from motion_ctrl.ros.lockstep import udp_context
+        context = udp_context(domain)
+    else:
+        rclpy.init()
+        context = None
+    client = SlideClient(axes=(args.axis,), name=tool, truth=False, services=services,
+                         context=context)
     try:
         if not client.wait_ready(30.0):
             raise CalibrationError(f'the controller is not ready ({client.not_ready()})')
@@ -401,7 +403,7 @@ def axis_session(args, tool: str, services: bool = False):
         yield client, AxisUnderTest(client, args.axis), out
     finally:
         client.destroy_node()
-        rclpy.try_shutdown()
+        rclpy.try_shutdown(context=context)
         for n in reversed(nodes):
             n.stop()
 
