@@ -266,6 +266,8 @@ def main(argv=None) -> int:
     print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
     for f in soak.faults:
         print(f'soak: fault: {f}')
+    for f in visitors.failed:
+        print(f'soak: visitor failed: {f}')
     steal.running = False
     stamps = fault_stamps(log) + fault_stamps((out / 'plant.log').read_text())
     alive = sum(any(a <= s <= b for a, b in visitors.spans) for s in stamps)
