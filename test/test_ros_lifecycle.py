@@ -89,6 +89,45 @@ def test_stop_does_not_wait_for_a_stuck_teardown(node_env):
     assert 'stuck: stop took over' in err and 'destroy_node' in err, err
 
 
+STUCK_LOOP = """
+import ctypes, rclpy
+from rclpy.signals import SignalHandlerOptions
+from motion_ctrl.ros.controller_node import spin
+rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+node = rclpy.create_node('wedged')
+libc = ctypes.PyDLL(None)                  # (PyDLL: its calls keep the GIL)
+mutex = ctypes.create_string_buffer(64)    # a pthread mutex, taken once already
+libc.pthread_mutex_lock(mutex)
+def wedge():
+    print('up', flush=True)
+    libc.pthread_mutex_lock(mutex)   # waits for good, keeping the GIL, as a stuck publish() did
+node.create_timer(0.5, wedge)
+spin(node)
+"""
+
+
+def test_a_wedged_loop_ends_its_process(node_env):
+    """The process watchdog: a spin loop that stands still WATCHDOG s (here in a C call holding
+    the GIL, where neither a signal handler nor the stop deadline can run) ends the process,
+    exit code 1, with every thread's stack on stderr; a SIGTERM meanwhile changes nothing."""
+    from motion_ctrl.ros.controller_node import WATCHDOG
+    proc = subprocess.Popen([sys.executable, '-c', STUCK_LOOP], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=node_env)
+    try:
+        assert proc.stdout.readline().strip() == 'up'
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(WATCHDOG + 10.0)
+        elapsed = time.monotonic() - t0
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 1, err
+    assert elapsed < WATCHDOG + 1.0, elapsed
+    assert 'Timeout' in err and 'wedge' in err, err
+
+
 FROZEN = """
 import gc, os, signal
 import rclpy

@@ -26,6 +26,7 @@ its own so the servo tick only hands it over.
 """
 from __future__ import annotations
 
+import faulthandler
 import gc
 import math
 import os
@@ -60,6 +61,7 @@ STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
 # at 100 Hz took the loop from 995 to ~500 Hz). 64 KiB holds hundreds of axes.
 MAX_TARGET_BYTES = 65536
 STOP_DEADLINE = 3.0      # s from SIGINT/SIGTERM to exit, whatever ROS's teardown is doing
+WATCHDOG = 5.0           # s the spin loop may stand still before the process ends (exit 1)
 MAX_TARGET_NAMES = 256
 # A trajectory is checked in the callback, between two ticks: ~16 µs per point with
 # accelerations (quintic: its velocity and acceleration extrema are roots of quartics and
@@ -420,9 +422,19 @@ def spin(node) -> None:
     gc.collect()
     gc.freeze()
     stop_on_signals(node.get_name())
+    pet = 0.0
     try:
         while not _stopped.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
+            now = time.monotonic()
+            if now >= pet:
+                # The process watchdog (PMAC's watchdog timer): a loop stuck WATCHDOG s ends the
+                # process from faulthandler's own thread, which needs no GIL; rclpy keeps the
+                # GIL through publish(), and a publish was seen stuck on the shared-memory port
+                # of a SIGKILLed peer with the SIGTERM never handled (the stop deadline is a
+                # Python thread). The amplifiers' command watchdog keeps the axes safe meanwhile.
+                faulthandler.dump_traceback_later(WATCHDOG, exit=True, file=sys.stderr)
+                pet = now + WATCHDOG / 10
     finally:
         safe = getattr(node, 'shutdown_outputs', None)
         if safe is not None and rclpy.ok():
@@ -433,6 +445,7 @@ def spin(node) -> None:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()     # (armed until the teardown is done)
 
 
 _stopped = threading.Event()       # set by SIGINT / SIGTERM once stop_on_signals ran
