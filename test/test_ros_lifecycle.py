@@ -68,22 +68,28 @@ spin(node)
 """
 
 
-def test_stop_does_not_wait_for_a_stuck_teardown(node_env):
-    """A node whose ROS teardown hangs still leaves STOP_DEADLINE after SIGTERM, exit code 0,
-    saying why and where it was stuck (once in CI a plant was still there 5 s after it)."""
-    from motion_ctrl.ros.controller_node import STOP_DEADLINE
-    proc = subprocess.Popen([sys.executable, '-c', STUCK_TEARDOWN], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=node_env)
+def _sigterm_when_up(script: str, env: dict, wait: float) -> tuple[int, float, str]:
+    """Run `script` (it prints 'up' when its node spins), SIGTERM it then, and wait up to `wait`
+    s for it to end: (exit code, seconds from the signal, stderr)."""
+    proc = subprocess.Popen([sys.executable, '-c', script], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout is not None and proc.stderr is not None
     try:
         assert proc.stdout.readline().strip() == 'up'
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
-        code = proc.wait(STOP_DEADLINE + 5.0)
-        elapsed = time.monotonic() - t0
-        err = proc.stderr.read()
+        code = proc.wait(wait)
+        return code, time.monotonic() - t0, proc.stderr.read()
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_stop_does_not_wait_for_a_stuck_teardown(node_env):
+    """A node whose ROS teardown hangs still leaves STOP_DEADLINE after SIGTERM, exit code 0,
+    saying why and where it was stuck (once in CI a plant was still there 5 s after it)."""
+    from motion_ctrl.ros.controller_node import STOP_DEADLINE
+    code, elapsed, err = _sigterm_when_up(STUCK_TEARDOWN, node_env, STOP_DEADLINE + 5.0)
     assert code == 0, err
     assert STOP_DEADLINE - 0.1 < elapsed < STOP_DEADLINE + 2.0, elapsed
     assert 'stuck: stop took over' in err and 'destroy_node' in err, err
@@ -111,18 +117,7 @@ def test_a_wedged_loop_ends_its_process(node_env):
     the GIL, where neither a signal handler nor the stop deadline can run) ends the process,
     exit code 1, with every thread's stack on stderr; a SIGTERM meanwhile changes nothing."""
     from motion_ctrl.ros.controller_node import WATCHDOG
-    proc = subprocess.Popen([sys.executable, '-c', STUCK_LOOP], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=node_env)
-    try:
-        assert proc.stdout.readline().strip() == 'up'
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        code = proc.wait(WATCHDOG + 10.0)
-        elapsed = time.monotonic() - t0
-        err = proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    code, elapsed, err = _sigterm_when_up(STUCK_LOOP, node_env, WATCHDOG + 10.0)
     assert code == 1, err
     assert elapsed < WATCHDOG + 1.0, elapsed
     assert 'Timeout' in err and 'wedge' in err, err
