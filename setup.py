@@ -76,6 +76,7 @@ setup(
     name=PACKAGE,
     version=VERSION,
     packages=find_packages(exclude=['test', 'test.*']),
+    package_data={PACKAGE + '.ros': ['*.xml']},     # the servo bus's Fast DDS profile
     data_files=data_files,
     install_requires=['setuptools'],
     zip_safe=True,

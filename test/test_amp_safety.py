@@ -10,8 +10,13 @@ controller then takes the axis over: reset + enable and a 1-inch move land withi
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import pathlib
+import re
+import shutil
 import signal
+import subprocess
 import time
 from typing import cast
 
@@ -248,6 +253,64 @@ def test_sigkill_of_the_process_started_kills_the_loop_cleanly(bus_slide):
     error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
     assert abs(error) <= 1.0
+
+
+def _shm_ports(pid: int) -> list[str]:
+    """The Fast DDS shared-memory ports (/dev/shm/fastdds_port*) process `pid` has open."""
+    fds = pathlib.Path(f'/proc/{pid}/fd')
+    return sorted({t for t in (os.readlink(f) for f in fds.iterdir() if f.is_symlink())
+                   if 'fastdds_port' in t})
+
+
+def test_no_process_of_the_servo_bus_opens_a_shared_memory_port(bus_slide):
+    """Every participant of the bus announces loopback UDP only (ros/loopback_udp.xml): no
+    process of it has a shared-memory port that another would send to (without the profile
+    each had two: its discovery port and its data port)."""
+    slide = bus_slide
+    pids = {f'{n} {k}': pid for n, node in (('plant', slide.plant), ('controller',
+                                                                      slide.controller))
+            for k, pid in (('loop', node.servo_pid()), ('bridge', node.proc.pid))}
+    assert slide.controller.servo_pid() != slide.controller.proc.pid, 'no servo bus'
+    assert {k: _shm_ports(pid) for k, pid in pids.items()} == {k: [] for k in pids}
+
+
+# A listener thread of Fast DDS's shared-memory transport, and the lock it takes on its port
+WAIT_POP = ('_ZN8eprosima7fastdds4rtps15SharedMemGlobal4Port8wait_popERNS1_31MultiProducerConsumer'
+            'RingBufferINS2_16BufferDescriptorEE8ListenerERKSt6atomicIbEj')
+LOCK = '_ZN5boost12interprocess18interprocess_mutex4lockEv'
+
+
+@pytest.mark.skipif(shutil.which('gdb') is None, reason='needs gdb, to stop the loop in its '
+                    'transport')
+def test_a_loop_killed_inside_its_transport_holds_up_nothing(bus_slide):
+    """The controller's loop SIGKILLed at the worst moment for shared memory: from gdb, once
+    one of its transport's listeners has taken its port's mutex (if it has such a port).
+    With shared memory, the plant's next send to that port waited 1 s for the dead owner's
+    lock (Fast DDS's interprocess lock timeout), and the plant stood still: `plant held up
+    1001 ms`, 2 runs of 2. On the bus, with loopback UDP only, there is no such lock: the
+    plant's stream runs on without a hole of the 100 ms that its simulation can integrate."""
+    slide = bus_slide
+    client = slide.client
+    spin_for(client, 0.5)
+    loop = slide.controller.servo_pid()
+    t_kill = time.time()
+    gdb = subprocess.Popen(
+        ['timeout', '4', 'gdb', '-p', str(loop), '-batch', '-ex', f'break {WAIT_POP}',
+         '-ex', 'continue', '-ex', f'eval "break {LOCK} thread %d", $_thread', '-ex', 'continue',
+         '-ex', 'finish', '-ex', 'kill'], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+        text=True)
+    client.spin_until(lambda: gdb.poll() is not None, 10.0)    # (the truth keeps coming in)
+    with contextlib.suppress(ProcessLookupError):     # (no listener: not stopped in it)
+        os.kill(loop, signal.SIGKILL)
+    stopped_in = re.findall(r'Thread \d+ "([^"]+)" hit Breakpoint', gdb.communicate()[0])
+    assert client.spin_until(lambda: client.truth_log[-1][0] > t_kill + 3.0, 10.0), \
+        'the plant\'s ground truth stopped'
+    stamps = [s[0] for s in client.truth_log if s[0] > t_kill - 0.5]
+    gap = max(b - a for a, b in zip(stamps, stamps[1:]))
+    print(f'stopped in {stopped_in or "no listener"}; longest gap in the plant\'s stream '
+          f'{gap * 1e3:.1f} ms')
+    assert gap < 0.1, (gap, stopped_in, slide.log('plant')[-2000:])
+    assert 'held up' not in slide.log('plant')
 
 
 def _wait_gone(pid: int, timeout: float = 10.0) -> None:

@@ -153,6 +153,13 @@ def test_installed_tree_is_complete():
             assert f'/../../bin/{name}"' in text
 
 
+def test_installed_package_has_its_data():
+    """The servo bus's Fast DDS profile is installed beside the module that names it."""
+    _installed_prefix()
+    path = metadata.distribution(PACKAGE).locate_file(f'{PACKAGE}/ros/loopback_udp.xml')
+    assert os.path.isfile(str(path)), path
+
+
 def test_installed_entry_points_match():
     _installed_prefix()
     dist = metadata.distribution(PACKAGE)

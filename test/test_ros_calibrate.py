@@ -38,8 +38,8 @@ def headline_error(domain: int) -> float:
     """The headline move (+2 in, back to +1 in) on the running slide: the true slide's final
     error [linear counts]."""
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.lockstep import udp_context
-    context = udp_context(domain)
+    from motion_ctrl.ros.lockstep import client_context
+    context = client_context(domain)
     client = SlideClient(context=context)
     try:
         assert client.wait_ready(30.0), client.not_ready()
@@ -61,11 +61,10 @@ def test_calibration_takes_out_the_backlash(node_env, module_domain, tmp_path, p
                                             backlash_counts):
     from motion_ctrl.ros import lockstep
     from motion_ctrl.tools.calibrate import SPAWN_CONTROLLER
-    env = node_env | lockstep.UDP_ONLY
-    nodes = lockstep.start_slide(SPAWN_CONTROLLER | TUNED, plant, tmp_path, env)
+    nodes = lockstep.start_slide(SPAWN_CONTROLLER | TUNED, plant, tmp_path, node_env)
     try:
         run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.calibrate', *ARGS,
-                              '-o', str(tmp_path)], env=env, capture_output=True, text=True,
+                              '-o', str(tmp_path)], env=node_env, capture_output=True, text=True,
                              timeout=230)
         assert run.returncode == 0, f'calibrate failed, logs in {tmp_path}:\n' + \
             run.stdout[-3000:] + run.stderr[-3000:]

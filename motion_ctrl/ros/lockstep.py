@@ -20,47 +20,41 @@ from motion_ctrl.ros import processes, ros_env
 from motion_ctrl.ros.processes import NodeProcess, log_file, params_dir
 
 
-# Loopback UDP, not shared memory: Fast DDS leaves the shared-memory port queues of stopped
-# processes in /dev/shm, and a new participant on the same domain and port was seen reading an
-# earlier run's last samples from them (a stale /clock ended a run at once). Lost UDP datagrams
-# cost nothing here: the plant resends a sample without answer.
-UDP_ONLY = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 # The lockstep overrides: the plant is the clock, the controller ticks on its sim time; both at
 # normal scheduling, since they run flat out (at real-time priority they would starve the rest).
 CONTROLLER = {'use_sim_time': 'true', 'realtime_priority': 0}
 PLANT = {'lockstep': 1, 'realtime_priority': 0}
 # The nodes' environment: no servo bus (ros.servo_bus), which keeps the loop clear of what joins
 # the user's domain; in lockstep a stall holds up the sim time, not the loop, and the bridges'
-# copies would only slow the run.
-NODE_ENV = UDP_ONLY | {'MOTION_CTRL_SERVO_DOMAIN': 'off'}
+# copies would only slow the run. Each run has a domain of its own: Fast DDS leaves the
+# shared-memory port queues of stopped processes in /dev/shm, and a new participant on the same
+# domain and port was seen reading an earlier run's last samples from them (a stale /clock ended
+# a run at once).
+NODE_ENV = {'MOTION_CTRL_SERVO_DOMAIN': 'off'}
 
 
-def udp_context(domain: int):
-    """An initialised rclpy context on `domain` whose participants use loopback UDP only (the
-    variable is read when a participant is created; this process's environment is restored)."""
+def node_env(env: dict | None = None) -> dict:
+    """`env` (default: this process's) for a lockstep node: off the bus, and announcing
+    loopback UDP only (ros_env.loopback_udp: no shared-memory port to leave behind)."""
+    env = dict(os.environ if env is None else env) | NODE_ENV
+    return env | ros_env.loopback_udp(env)
+
+
+def client_context(domain: int):
+    """An initialised rclpy context on `domain`, for a client of the lockstep nodes."""
     import rclpy
     context = rclpy.Context()
-    saved = {k: os.environ.get(k) for k in UDP_ONLY}
-    os.environ.update(UDP_ONLY)
-    try:
-        rclpy.init(context=context, domain_id=domain)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    rclpy.init(context=context, domain_id=domain)
     return context
 
 
 def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
                 log_dir=None, env: dict | None = None):
-    """Plant (the clock) and controller (on its sim time) as two processes on loopback UDP
-    (processes.start_slide with the lockstep overrides); returns (plant, controller). The sim
-    runs as soon as they have found each other: the plant resends its sample until answered."""
+    """Plant (the clock) and controller (on its sim time) as two processes (processes.start_slide
+    with the lockstep overrides, node_env); returns (plant, controller). The sim runs as soon
+    as they have found each other: the plant resends its sample until answered."""
     return processes.start_slide((controller_params or {}) | CONTROLLER,
-                                 (plant_params or {}) | PLANT, log_dir,
-                                 env=dict(os.environ if env is None else env) | NODE_ENV)
+                                 (plant_params or {}) | PLANT, log_dir, env=node_env(env))
 
 
 def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
@@ -73,8 +67,8 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     """
     d = params_dir()
     domain = ros_env.spare_domain()
-    env = os.environ | {'ROS_DOMAIN_ID': str(domain)} | NODE_ENV
-    context = udp_context(domain)
+    env = node_env(os.environ | {'ROS_DOMAIN_ID': str(domain)})
+    context = client_context(domain)
     # The observer is the third process on two cores: it must not slow the loop it watches.
     # It takes plant_states raw (no Python message per sample) and decodes them after the
     # run; progress is read from the newest sample a few times a second.

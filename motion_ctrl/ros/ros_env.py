@@ -44,6 +44,21 @@ def spare_domain() -> int:
     return (_spare_base + 25 + next(_spare_domains)) % 101 + 1
 
 
+# The Fast DDS profile by which a process's participants announce loopback UDP locators only, no
+# shared memory (loopback_udp.xml says why): the servo bus's processes and the lockstep nodes.
+PROFILES_ENV = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+LOOPBACK_UDP = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'loopback_udp.xml')
+
+
+def loopback_udp(environ=os.environ) -> dict:
+    """The environment entry that gives a process's participants the loopback-UDP profile; {}
+    when the user chose a Fast DDS profile file of their own (theirs is kept). Fast DDS reads it
+    once per process, when its first participant is made: set it before the first node."""
+    if any(environ.get(k) for k in PROFILES_ENV):
+        return {}
+    return {PROFILES_ENV[0]: LOOPBACK_UDP}
+
+
 def executor(context=None):
     """The executor that holds a 1 kHz loop best here (REFERENCE.md: EventsExecutor, about half
     the CPU of SingleThreaded), SingleThreaded where rclpy has no EventsExecutor (before Jazzy

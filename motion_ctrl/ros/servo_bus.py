@@ -28,6 +28,8 @@ import sys
 import threading
 import time
 
+from motion_ctrl.ros import ros_env
+
 ENV = 'MOTION_CTRL_SERVO_DOMAIN'
 INSIDE = 'MOTION_CTRL_SERVO_PROCESS'     # set in the node's own process on the bus
 STOP_WAIT = 10.0                         # s the node gets to command 0 V and leave
@@ -90,6 +92,11 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         return 2
     if domain is None:
         return None
+    # Every participant on the bus announces loopback UDP only, the bridge's and the node's
+    # (inherited): a process killed on the bus then leaves no shared-memory port for the other
+    # to wait on (loopback_udp.xml). Set before the bridge's first node makes its participant.
+    transport = ros_env.loopback_udp()
+    os.environ.update(transport)
     stop: list[int] = []
     started: list[subprocess.Popen] = []
     # The node is told SIGTERM: it stops as on SIGINT once it runs, and while it still imports
@@ -102,6 +109,9 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     bus = _Bus.open(domain, *node_name(name, argv))
+    if not transport:
+        bus.bridge.log('the servo bus runs on your Fast DDS profile file, not on loopback_udp.xml: '
+                       'a node killed on the bus can hold up the other for a second')
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
     from motion_ctrl.ros.processes import child_preexec
@@ -124,7 +134,6 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         rc = node.returncode if node.returncode >= 0 else 128 - node.returncode
         # (its node gone, the bridge leaves with its code even if ROS's teardown hangs: seen
         # once in eight bridges started at once)
-        from motion_ctrl.ros import ros_env
         ros_env.leave_if_stuck(name, STOP_WAIT_BRIDGE, rc, 'closing the bridge')
         bus.close()
     return rc
@@ -144,8 +153,6 @@ class _Bus:
 
     def __init__(self, name: str, namespace: str, public_ctx, servo_ctx):
         from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
-
-        from motion_ctrl.ros import ros_env
 
         from motion_ctrl.ros.bridge import POLL, Bridge
         self.contexts = (public_ctx, servo_ctx)

@@ -336,7 +336,7 @@ SPAWN_CONTROLLER = {'feedback_timeout': '1.5'}
 
 
 def _spawn(args, out: pathlib.Path):
-    """Plant and controller processes; with lockstep on loopback UDP (lockstep.py says why)."""
+    """Plant and controller processes, in lockstep if asked (lockstep.start_slide)."""
     from motion_ctrl.ros import lockstep
     from motion_ctrl.ros.processes import start_slide
     plant_params = dict(p.split(':=', 1) for p in args.plant)
@@ -381,9 +381,9 @@ def axis_session(args, tool: str, services: bool = False):
     # controller's publishers for a moment (a newcomer's shared-memory port, README Notes): the
     # spawned controller has a wide feedback_timeout for that (SPAWN_CONTROLLER).
     nodes = _spawn(args, out) if args.spawn else ()
-    if args.lockstep:                  # (loopback UDP, as the spawned nodes: lockstep.py)
-        from motion_ctrl.ros.lockstep import udp_context
-        context = udp_context(domain)
+    if args.lockstep:
+        from motion_ctrl.ros.lockstep import client_context
+        context = client_context(domain)
     else:
         rclpy.init()
         context = None
