@@ -84,6 +84,26 @@ def test_feedback_fault_after_the_timeout_logged_once():
     assert lines == []                                           # once, not per tick
 
 
+def test_a_sample_older_than_the_one_in_hand_is_dropped():
+    """Two paths to the loop (the plant's stream and a bridge's copy of it, a hop later: README
+    "The servo bus") deliver a sample twice, the copy after newer ones. The loop does not step
+    back to it, and stale copies do not feed the feedback watchdog."""
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    t = 1.0
+    loop.feedback('x', 10, 10, t)                     # the slide 10 counts off
+    loop.tick(t)
+    loop.feedback('x', 0, 0, t - T)                   # the copy of the sample before it
+    loop.tick(t + T)
+    assert loop.axes['x'].following_error == pytest.approx(-10 * COUNT)
+    n = 1
+    while not loop.axes['x'].faults and n < 100:      # the plant stops; old copies go on
+        n += 1
+        loop.feedback('x', 0, 0, t - n * T)
+        loop.tick(t + n * T)
+    assert TIMEOUT / T < n <= TIMEOUT / T + 2
+
+
 def test_a_late_tick_counts_at_most_two_periods():
     """A controller held up 50 ms (its samples waiting in its queue) does not fault: the late
     tick counts 2 ms of waiting, not 50."""

@@ -31,6 +31,9 @@ from msg_defs.status import Status
 # s of encoder samples before the loop closes at start-up (real time): while DDS discovery
 # settles, a stream can pause for longer than feedback_timeout right after its first sample.
 STREAM_SETTLE = 0.5
+# s: an encoder stamp this much older than the sample in hand is a new clock, not a late copy
+# (a copy through a bridge lags by milliseconds, at most its second of history).
+CLOCK_RESTART = 1.0
 _FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
 _FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
 
@@ -75,7 +78,13 @@ class ServoLoop:
 
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
-        """An encoder sample of `axis`, stamped by the plant [s]."""
+        """An encoder sample of `axis`, stamped by the plant [s]. One not newer than the sample
+        in hand is dropped: two paths to the loop (the plant's stream and a bridge's copy of it,
+        a hop later) deliver a sample twice and out of order. A stamp more than CLOCK_RESTART
+        older is a new clock (a restarted lockstep plant), taken."""
+        held = self.enc[axis]
+        if held is not None and held[2] - CLOCK_RESTART < stamp <= held[2]:
+            return
         self.enc[axis] = (motor, load, stamp)
 
     def current(self, axis: str) -> dict:

@@ -13,8 +13,9 @@ with the same interface, by reading the node's endpoints from the servo bus's gr
   (`SERVO_TOPICS`: `encoders`, `command`, `/clock`), which plant and controller exchange on the
   servo bus, are copied in only once a node that is not a bridge publishes them on the user's
   domain: a plant (or controller) of another make, which does not join the bus, or a test's
-  publisher. The bridges' own copies out are never copied back (a second copy would reach the
-  loop late and twice);
+  publisher. Then everything published on that topic there is copied in, another bridge's copy
+  of the bus's own stream too: it reaches the loop a hop late and twice, and the loop drops a
+  sample older than the one it holds (core.servo_loop.ServoLoop.feedback);
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
   unchanged) is answered by calling the node's service and returning its response.
 
