@@ -59,8 +59,9 @@ import numpy as np
 
 if TYPE_CHECKING:
     from scipy.interpolate import BPoly, PPoly
-# scipy's interpolate / optimize / spatial are imported where used: they cost ~0.5 s of every
-# controller's start, and a controller that never receives a trajectory never needs them.
+# scipy's interpolate / optimize / spatial are imported where used (~0.5 s): what does not build
+# a trajectory does not pay for them. The controller node imports them before its loop runs
+# (ros.controller_node.PRELOAD): imported on its first trajectory, they stalled the loop.
 
 __all__ = ['AxisLimits', 'AxisPath', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
            'rounded_square', 'contour_error', 'START_TOLERANCE', 'REST_TOLERANCE',
