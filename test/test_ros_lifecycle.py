@@ -200,6 +200,35 @@ def test_a_signal_while_the_node_is_made_stops_it_cleanly(node_env):
     assert 'Traceback' not in r.stderr, r.stderr
 
 
+NESTED_SIGNALS = """
+import os, signal, sys, threading
+from motion_ctrl.ros.controller_node import stop_on_signals
+stop_on_signals('nested')
+handler = signal.getsignal(signal.SIGTERM)
+raised = [0]
+def profiler(frame, event, arg):     # another SIGTERM as each of the handler's first 200 calls
+    if event in ('return', 'c_return') and raised[0] < 200:    # returns (a lock taken, say)
+        raised[0] += 1
+        signal.raise_signal(signal.SIGTERM)
+sys.setprofile(profiler)
+handler(signal.SIGTERM, None)
+sys.setprofile(None)
+print(raised[0], sum(t.name.endswith('(leave)') for t in threading.enumerate()), flush=True)
+os._exit(0)
+"""
+
+
+def test_signals_inside_the_signal_handler_stop_the_node_once(node_env):
+    """A burst of signals runs the stop handler inside itself: it must take no lock (a
+    controller deadlocked in threading.Event.set so, its stop left to the process watchdog) and
+    start one stop deadline. Here a signal is raised as each call in the handler returns."""
+    r = subprocess.run([sys.executable, '-c', NESTED_SIGNALS], capture_output=True, text=True,
+                       timeout=20, env=node_env)
+    assert r.returncode == 0, r.stderr
+    raised, deadlines = map(int, r.stdout.split())
+    assert raised > 1 and deadlines == 1, r.stdout
+
+
 BAD_FILES = {
     # id: (node module, node name, YAML lines, parameter the message must name)
     'kp-negative': ('controller_node', 'controller', ['x.kp: -5.0'], 'x.kp'),

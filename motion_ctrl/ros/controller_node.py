@@ -432,7 +432,7 @@ def spin(node) -> None:
     stop_on_signals(node.get_name())
     pet = 0.0
     try:
-        while not _stopped.is_set() and rclpy.ok():
+        while _RUNNING and rclpy.ok():
             executor.spin_once(timeout_sec=0.05)
             now = time.monotonic()
             if now >= pet:
@@ -456,7 +456,10 @@ def spin(node) -> None:
         faulthandler.cancel_dump_traceback_later()     # (armed until the teardown is done)
 
 
-_stopped = threading.Event()       # set by SIGINT / SIGTERM once stop_on_signals ran
+# Emptied by the first SIGINT / SIGTERM once stop_on_signals ran. Not a threading.Event: a signal
+# handler must take no lock, since a second signal can run the handler again inside the first (a
+# burst of signals deadlocked a controller in Event.set; only the process watchdog ended it).
+_RUNNING = ['running']
 
 
 def stop_on_signals(name: str) -> None:
@@ -470,9 +473,11 @@ def stop_on_signals(name: str) -> None:
     is left, ROS's teardown of the node and its DDS participant, must not keep a stopped node
     alive."""
     def on_signal(*_):
-        if not _stopped.is_set():
-            _stopped.set()
-            ros_env.leave_if_stuck(name, STOP_DEADLINE)
+        try:
+            _RUNNING.pop()           # (one C call: of handlers run inside each other, one goes on)
+        except IndexError:
+            return
+        ros_env.leave_if_stuck(name, STOP_DEADLINE)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
 
