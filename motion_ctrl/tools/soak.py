@@ -86,8 +86,8 @@ class Visitors:
         self.spans.append((self._born.pop(p.pid, 0.0), time.time()))
         self.finished += 1
         if p.returncode != 0:
-            self.failed.append(out.strip().splitlines()[-1] if out.strip() else
-                               f'exit {p.returncode}')
+            last = out.strip().splitlines()[-3:] if out.strip() else []
+            self.failed.append(' | '.join([f'exit {p.returncode}', *last]))
         return True
 
 
