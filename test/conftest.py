@@ -191,20 +191,6 @@ def own_domain(rclpy_session, monkeypatch):
     context.try_shutdown()
 
 
-@pytest.fixture(scope='session')
-def slow_watchdog():
-    """Controller parameters for DDS tests that are not about the encoder watchdog.
-
-    Whenever a new participant or reader appears, Fast DDS's shared-memory transport
-    health-checks the new reader's port inside the writer's (synchronous) publish: the plant's
-    encoder stream stops for ~0.33 s, now and then up to 1 s (eProsima/Fast-DDS#6535, measured
-    here; the probes, recorders and clients of the tests are such newcomers). The default 20 ms
-    watchdog then rightly opens the loop (FEEDBACK_FAULT). A tick without a new sample holds
-    the output, so a wide watchdog does not wind the loop up while it waits.
-    """
-    return {'feedback_timeout': 1.5}
-
-
 @pytest.fixture(scope='module')
 def node_env(module_domain):
     """Environment for node processes tests start: this run's ROS domain and discovery range

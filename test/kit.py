@@ -2,8 +2,8 @@
 DDS tests run against.
 
 Imports no ROS package itself (the core tests take their units from here); ROS comes in when a
-slide starts. The ROS domain, the node environment and the widened encoder watchdog stay the
-fixtures of conftest (module_domain, own_domain, slow_watchdog).
+slide starts. The ROS domain and the node environment stay the fixtures of conftest
+(module_domain, own_domain, node_env).
 """
 from __future__ import annotations
 
@@ -48,8 +48,7 @@ def running_slide(log_dir, make_client: Callable[[], Any], controller_params: di
                   exit_zero: bool = False, plant_env: dict | None = None) -> Iterator[Slide]:
     """Plant and controller as processes (motion_ctrl.ros.processes.start_slide: the params
     files plus these overrides, logs in `log_dir`) and the client `make_client()` makes (before
-    the nodes with client_first: a reader joining later holds the plant's streams up, see
-    conftest.slow_watchdog); yields when the client sees the slide ready
+    the nodes with client_first); yields when the client sees the slide ready
     (SlideClient.wait_ready, then `ready(client)` if given), else fails with what was missing
     and the nodes' logs.
 

@@ -83,12 +83,8 @@ class Recorder(SlideClient):
 
 @pytest.fixture
 def slide(own_domain, tmp_path):
-    """The slide with the default parameters (20 ms encoder watchdog), the Recorder first: a
-    reader joining later holds the plant's streams up (conftest slow_watchdog), which would
-    trip it."""
+    """The slide with the default parameters (20 ms encoder watchdog), the Recorder first."""
     with running_slide(tmp_path, lambda: Recorder(own_domain), client_first=True) as s:
-        # Discovery holds streams up for a while after start-up, long enough to trip the
-        # default encoder watchdog (conftest.slow_watchdog); this test is about what follows.
         _enable(s.client)
         yield s
 
@@ -120,8 +116,7 @@ def _cruise(client):
         f'slide not at max_velocity: v = {client.truth_log[-1][2]:.4f} m/s'
     word = Status(client.status['x'])
     assert word & Status.ENABLED and not word & FAULTS, \
-        f'the axis faulted while cruising, before the stop: {word!r} (a DDS stall of the ' \
-        f'loaded machine, see conftest.slow_watchdog)'
+        f'the axis faulted while cruising, before the stop: {word!r}'
 
 
 def _after_stop(client, t_stop: float) -> dict:

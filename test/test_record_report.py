@@ -219,24 +219,22 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 
 
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
-# The recorder joining holds the encoder stream up (conftest.slow_watchdog); the recording is
-# under test here, not the feedback watchdog.
-def _slide(logs, watchdog, context=None):
+def _slide(logs, context=None):
     from motion_ctrl.ros.client import SlideClient
-    with running_slide(logs, lambda: SlideClient(name='record_test_client', context=context),
-                       watchdog) as s:
+    with running_slide(logs, lambda: SlideClient(name='record_test_client', context=context)) \
+            as s:
         yield s.client
 
 
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory, slow_watchdog):
-    yield from _slide(tmp_path_factory.mktemp('slide_logs'), slow_watchdog)
+def slide(rclpy_session, tmp_path_factory):
+    yield from _slide(tmp_path_factory.mktemp('slide_logs'))
 
 
 @pytest.fixture
-def own_slide(own_domain, tmp_path, slow_watchdog):
+def own_slide(own_domain, tmp_path):
     """A slide of its own on a domain of its own, for a test that kills a participant."""
-    yield from _slide(tmp_path, slow_watchdog, own_domain)
+    yield from _slide(tmp_path, own_domain)
 
 
 @pytest.fixture(scope='module')

@@ -60,8 +60,7 @@ def headline_error(domain: int) -> float:
 def test_calibration_takes_out_the_backlash(node_env, module_domain, tmp_path, plant,
                                             backlash_counts):
     from motion_ctrl.ros import lockstep
-    from motion_ctrl.tools.calibrate import SPAWN_CONTROLLER
-    nodes = lockstep.start_slide(SPAWN_CONTROLLER | TUNED, plant, tmp_path, node_env)
+    nodes = lockstep.start_slide(TUNED, plant, tmp_path, node_env)
     try:
         run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.calibrate', *ARGS,
                               '-o', str(tmp_path)], env=node_env, capture_output=True, text=True,

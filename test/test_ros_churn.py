@@ -1,14 +1,13 @@
 """Issue 11: the servo loop keeps running while people use ROS on it.
 
 `python -m motion_ctrl.tools.soak` (what `scripts/soak` runs) as a process of its own: plant and
-controller with the shipped parameters (feedback_timeout 0.02 s, realtime_priority 30, the servo
-bus), the axis moving 1 inch back and forth, while 50 short-lived participants
+controller with the shipped parameters (feedback_timeout 0.02 s, the servo bus) at soak's
+realtime_priority 30, the axis moving 1 inch back and forth, while 50 short-lived participants
 (motion_ctrl.ros.visitor: a node that reads a register, subscribes to joint_states and x/status
 for a moment, and exits) join and leave, two at a time, and a recorder starts and stops: no
 FEEDBACK_FAULT, every move within 1 count, the recorder exits cleanly. With
 MOTION_CTRL_SERVO_DOMAIN=off (no servo bus) it fails: README Notes, "ROS tools joining the graph".
 """
-import os
 import re
 import subprocess
 import sys
@@ -16,11 +15,7 @@ import sys
 import pytest
 
 
-# Opt-in (MOTION_CTRL_CHURN=1 scripts/test test/test_ros_churn.py): 2-3 minutes, and on this
-# 2-core VM one run in several still meets a start-up fault (README Notes), which would fail CI.
-@pytest.mark.skipif(not os.environ.get('MOTION_CTRL_CHURN'),
-                    reason='opt-in (MOTION_CTRL_CHURN=1): 2-3 min of 50 participants')
-@pytest.mark.timeout(300)
+@pytest.mark.timeout(300)          # (1-2 min here)
 def test_joining_tools_and_a_recorder_do_not_open_the_loop(tmp_path, node_env):
     run = subprocess.run(
         [sys.executable, '-m', 'motion_ctrl.tools.soak', '--visitors', '50', '--parallel', '2',

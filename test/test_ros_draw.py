@@ -13,11 +13,9 @@ import subprocess
 import sys
 
 
-def test_draw_circle_over_dds(tmp_path, node_env, slow_watchdog):
-    # The DDS tests' wider feedback watchdog (conftest.slow_watchdog, README Notes, issue 11).
-    params = [f'--param={k}:={v}' for k, v in slow_watchdog.items()]
+def test_draw_circle_over_dds(tmp_path, node_env):
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.draw', '--shapes', 'circle',
-                          '-o', str(tmp_path), *params], env=node_env, capture_output=True,
+                          '-o', str(tmp_path)], env=node_env, capture_output=True,
                          text=True, timeout=120)
     out = run.stdout + run.stderr
     row = re.search(r'^circle\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([+-][\d.]+)\s+'

@@ -10,7 +10,7 @@ from motion_ctrl.ros.client import SlideClient
 
 
 @pytest.fixture
-def slide(rclpy_session, tmp_path, request, slow_watchdog, monkeypatch):
+def slide(rclpy_session, tmp_path, request, monkeypatch):
     feedback, *plant = request.param.split(',')
     if plant:
         # 'foreign': the controller on the servo bus, the plant off it, answering on the user's
@@ -18,7 +18,7 @@ def slide(rclpy_session, tmp_path, request, slow_watchdog, monkeypatch):
         # (ros.bridge).
         monkeypatch.setenv(servo_bus.ENV, 'auto')
     with running_slide(tmp_path, lambda: SlideClient(name=f'headline_{feedback}'),
-                       slow_watchdog | {'x.feedback': feedback}, exit_zero=True,
+                       {'x.feedback': feedback}, exit_zero=True,
                        plant_env={servo_bus.ENV: 'off'} if plant else None) as s:
         yield s.client
         if plant:

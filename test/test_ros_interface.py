@@ -18,11 +18,11 @@ REPO = pathlib.Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
-def three_axes(rclpy_session, tmp_path, slow_watchdog):
+def three_axes(rclpy_session, tmp_path):
     axes = "['x','y','z']"   # quoted: a bare y is YAML for true
     with running_slide(tmp_path, lambda: SlideClient(axes=('x', 'y', 'z'),
                                                      name='three_axes_client'),
-                       {'axes': axes} | slow_watchdog, {'axes': axes}, exit_zero=True) as s:
+                       {'axes': axes}, {'axes': axes}, exit_zero=True) as s:
         yield s.client
 
 

@@ -31,6 +31,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
 from kit import COUNT, INCH, running_slide, spin_for  # noqa: E402
+from motion_ctrl.core import registers  # noqa: E402
 from motion_ctrl.ros.client import SlideClient  # noqa: E402
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
@@ -39,9 +40,9 @@ try:                            # the project venv has pytest-timeout: a hung wa
 except ImportError:
     pass
 
-# The encoder watchdog is widened (conftest.slow_watchdog: DDS discovery holds streams up for
-# ~0.33 s) and tested on its own at the end, when the plant stops. The `axis` fixture repairs a
-# fault a stall caused, so one stall costs one test, not the module.
+# The shipped parameters, the 20 ms encoder watchdog included (tested on its own at the end,
+# when the plant stops). The `axis` fixture repairs a fault, so one costs one test, not the
+# module.
 
 FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
 
@@ -259,8 +260,8 @@ class Slide:
 
 
 @pytest.fixture(scope='module')
-def slide(rclpy_session, tmp_path_factory, slow_watchdog):
-    with running_slide(tmp_path_factory.mktemp('slide'), Probe, slow_watchdog,
+def slide(rclpy_session, tmp_path_factory):
+    with running_slide(tmp_path_factory.mktemp('slide'), Probe,
                        ready=lambda probe: probe.params.wait_for_services(10.0)) as s:
         yield Slide(s.plant, s.controller, s.client, s.log_dir)
 
@@ -923,7 +924,7 @@ def _loop_values(msg) -> dict:
     return {kv.key: kv.value for kv in loop[0].values}
 
 
-def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis, slow_watchdog):
+def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
     """/diagnostics about once a second: the achieved rate, the period jitter and the skipped
     ticks it reports for each window are those of the ticks themselves, recomputed here from
     the reference_states stamps (one message per tick, read reliably) that fall in the window;
@@ -955,7 +956,7 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis, slow_watchdog):
         assert 0.0 < float(values['tick_work_mean_us']) <= float(values['tick_work_max_us'])
         # The longest wait for a new encoder sample stayed inside the watchdog (no fault).
         assert 0.0 <= float(values['feedback_wait_max_ms']) <= \
-            1e3 * slow_watchdog['feedback_timeout'], values
+            1e3 * registers.CONTROLLER_GLOBAL['feedback_timeout'].default, values
     axis_status = [st for st in msgs[-1].status if st.name.endswith('axis x')]
     assert len(axis_status) == 1
     axis_values = {kv.key: kv.value for kv in axis_status[0].values}

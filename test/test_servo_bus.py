@@ -10,7 +10,7 @@ from motion_ctrl.ros.bridge import STARTUP, Bridge  # noqa: E402
 
 
 @pytest.mark.parametrize('value, user, bus', [
-    ('auto', '7', 58), ('auto', '0', 51), ('auto', '60', 10), ('', '7', None), ('off', '7', None),
+    ('auto', '7', 58), ('auto', '0', 51), ('auto', '60', 10), ('', '7', 58), ('off', '7', None),
     ('12', '7', 12)])
 def test_servo_domain_from_the_environment(value, user, bus):
     env = {servo_bus.ENV: value, 'ROS_DOMAIN_ID': user}

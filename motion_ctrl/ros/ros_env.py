@@ -6,7 +6,6 @@ DDS discovery stays on this host unless the user chose otherwise
 nodes (demo, tests, benchmark) also get a ROS_DOMAIN_ID of their own when none (or 0) is set, so
 parallel runs on one machine don't see each other. Call before rclpy.init().
 """
-import contextlib
 import fcntl
 import itertools
 import os
@@ -103,23 +102,6 @@ def realtime(priority: int) -> str | None:
                 f'`ulimit -r {priority}`): normal scheduling, where CPU load and ROS tools '
                 f'joining the graph can delay encoder samples past feedback_timeout')
     return None
-
-
-@contextlib.contextmanager
-def realtime_threads(priority: int):
-    """Threads started meanwhile (the DDS threads of a participant made then) run SCHED_FIFO at
-    `priority`; the calling thread goes back to its own scheduling after. Where that is not
-    allowed, nothing changes."""
-    try:
-        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (AttributeError, OSError):
-        yield
-        return
-    try:
-        yield
-    finally:
-        os.sched_setscheduler(0, policy, param)
 
 
 SHM_DIR = '/dev/shm'

@@ -11,12 +11,12 @@ process that sends to a newcomer. The loop therefore runs in a process whose onl
 is on the servo bus; the process the user started (`controller`, `plant`, `ros2 launch`) holds
 the bridge, and a tool can hold up only that.
 
-MOTION_CTRL_SERVO_DOMAIN chooses the bus: `auto`, the domain 50 above ROS_DOMAIN_ID (wrapping in
-1..101, as motion_ctrl's own domains do, below Linux's ephemeral ports); a number, that domain
-(plant and controller must agree); unset or `off`, no bus: the node runs on the user's domain
-itself. A plant (or controller) of another make answers on the user's domain; with the bus the
-bridge copies its stream in and the node's out (bridge.py), a hop more each way. Opt-in for now
-(README, "The servo bus": on two loaded cores the suite is not yet clean with it).
+MOTION_CTRL_SERVO_DOMAIN chooses the bus: unset or `auto` (the default), the domain 50 above
+ROS_DOMAIN_ID (wrapping in 1..101, as motion_ctrl's own domains do, below Linux's ephemeral
+ports); a number, that domain (plant and controller must agree); `off`, no bus: the node runs on
+the user's domain itself. A plant (or controller) of another make answers on the user's domain;
+the bridge copies its stream in and the node's out (bridge.py), a hop more each way. Every
+participant on the bus announces loopback UDP only (loopback_udp.xml).
 """
 from __future__ import annotations
 
@@ -34,20 +34,16 @@ ENV = 'MOTION_CTRL_SERVO_DOMAIN'
 INSIDE = 'MOTION_CTRL_SERVO_PROCESS'     # set in the node's own process on the bus
 STOP_WAIT = 10.0                         # s the node gets to command 0 V and leave
 STOP_WAIT_BRIDGE = 3.0                   # s the bridge gets to close after its node has gone
-# The bridge's DDS threads on the bus run above every normally scheduled thread, so a node at
-# real-time priority never waits on a bridge's shared-memory port whose listener a busy machine
-# left off the CPU holding its lock; its Python threads (the copies, the user's side) do not.
-BUS_THREAD_PRIORITY = 1
 
 
 def servo_domain(environ=os.environ) -> int | None:
     """The servo bus's domain for this environment, or None for no bus (`off`). Raises
     ValueError with the reason on a value that is not a domain."""
     value = environ.get(ENV, '').strip().lower()
-    if value in ('', 'off'):
+    if value == 'off':
         return None
     user = int(environ.get('ROS_DOMAIN_ID') or 0)
-    if value == 'auto':
+    if value in ('', 'auto'):
         return (user + 50) % 101 + 1
     if not value.isdigit() or not 0 <= int(value) <= 232:
         raise ValueError(f'{ENV}={value!r}: a ROS domain id (0..232), auto or off')
@@ -156,10 +152,8 @@ class _Bus:
 
         from motion_ctrl.ros.bridge import POLL, Bridge
         self.contexts = (public_ctx, servo_ctx)
-        # (the participant comes with the first node)
-        with ros_env.realtime_threads(BUS_THREAD_PRIORITY):
-            self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
-                f'[{name}] {m}', file=sys.stderr, flush=True))
+        self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
+            f'[{name}] {m}', file=sys.stderr, flush=True))
         # The servo side copies every watched stream sample: the lighter executor (ros_env).
         self.executors = [ros_env.executor(servo_ctx), SingleThreadedExecutor(context=servo_ctx),
                           MultiThreadedExecutor(num_threads=4, context=public_ctx),

@@ -325,22 +325,12 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
-# A run of a hundred moves on this 2-core VM, shared with other work, met encoder streams held
-# up for more than the default 20 ms feedback_timeout (FEEDBACK_FAULT, loop opened, test lost);
-# the spawned controller watches its feedback as the DDS tests do (test/conftest.py,
-# slow_watchdog). A tick without a new sample holds the output, so nothing winds up meanwhile.
-# (Real-time priority for the nodes was tried: with this tool's 1 kHz joint_states reader at
-# normal priority beside them on two cores, their sends waited on its shared-memory port:
-# worse. README Notes.)
-SPAWN_CONTROLLER = {'feedback_timeout': '1.5'}
-
-
 def _spawn(args, out: pathlib.Path):
     """Plant and controller processes, in lockstep if asked (lockstep.start_slide)."""
     from motion_ctrl.ros import lockstep
     from motion_ctrl.ros.processes import start_slide
     plant_params = dict(p.split(':=', 1) for p in args.plant)
-    controller_params = SPAWN_CONTROLLER | dict(p.split(':=', 1) for p in args.controller)
+    controller_params = dict(p.split(':=', 1) for p in args.controller)
     start = lockstep.start_slide if args.lockstep else start_slide
     return start(controller_params, plant_params, log_dir=out)
 
@@ -357,8 +347,7 @@ def session_arguments(ap: argparse.ArgumentParser, tool: str, plant_example: str
     ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
                     help=f'with --spawn: a plant parameter, e.g. {plant_example}')
     ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
-                    help='with --spawn: a controller parameter (default feedback_timeout:=1.5, '
-                    'as the DDS tests: see SPAWN_CONTROLLER)')
+                    help='with --spawn: a controller parameter')
 
 
 @contextlib.contextmanager
@@ -377,9 +366,7 @@ def axis_session(args, tool: str, services: bool = False):
     out.mkdir(parents=True, exist_ok=True)
     # The nodes first, then this participant (as the demo): a client that was there before
     # the nodes started saw the first move end in FOLLOWING_ERROR_FATAL, 3 runs of 3 (not
-    # understood; README Notes). Its readers joining a running controller can stall the
-    # controller's publishers for a moment (a newcomer's shared-memory port, README Notes): the
-    # spawned controller has a wide feedback_timeout for that (SPAWN_CONTROLLER).
+    # understood; README Notes).
     nodes = _spawn(args, out) if args.spawn else ()
     if args.lockstep:
         from motion_ctrl.ros.lockstep import client_context
