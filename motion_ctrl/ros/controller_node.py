@@ -412,8 +412,9 @@ class ControllerNode(ros_params.RegisterNode):
         # The worker threads end first: they hold the node, and a node alive at the
         # interpreter's exit outlives the extension modules (nanobind listed ruckig's objects
         # as ~30 lines of "leaked" on every stop).
-        self.trajectories.put(None)
-        self.gathers.put(None)
+        for work in ('trajectories', 'gathers'):    # (a node refused half-made has none yet)
+            if hasattr(self, work):
+                getattr(self, work).put(None)
         super().destroy_node()
 
     def _publish_diagnostics(self) -> None:
