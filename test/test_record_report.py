@@ -408,6 +408,9 @@ def test_recorder_api_in_process(slide, tmp_path):
     bag = tmp_path / 'api'
     with Recorder(bag) as rec:
         assert rec.wait_ready(10.0)
+        # ready: every topic's first message in (through the bridges, a stream is copied only
+        # once a reader is seen: a move started at a matched publisher was not recorded)
+        assert all(rec.counts.get(t, 0) > 0 for t in SERVO_TOPICS), rec.counts
         # Until every servo stream has brought 20 messages: a stream can pause for 0.33 s while
         # a participant joins (README, Notes); the bag's contents are under test here.
         slide.spin_until(lambda: all(rec.counts.get(t, 0) > 20 for t in SERVO_TOPICS), 10.0)

@@ -343,14 +343,16 @@ class Recorder:
             self.spin_once(SPIN_TIMEOUT)
 
     def ready(self) -> bool:
-        """Every requested topic subscribed and matched to a publisher; with discovery, at least
-        one status topic found."""
+        """Every requested topic subscribed and its first message in; with discovery, at least
+        one status topic found. A matched publisher is not enough: a bridge of the servo bus
+        publishes every topic from the start but copies a stream only once it has seen a
+        reader (the demo's bag missed its first move)."""
         subs = dict(self._subs)          # the graph scan may add one meanwhile
         if self.pending or not subs:
             return False
         if self.discover_status and not any(t.endswith('/status') for t in subs):
             return False
-        return all(s.get_publisher_count() > 0 for s in subs.values())
+        return all(self.counts.get(t, 0) > 0 for t in subs)
 
     def unmatched(self) -> list:
         """Topics subscribed without a publisher yet, and requested topics not in the graph."""
