@@ -170,7 +170,7 @@ print(sorted(set(sys.modules) - before), flush=True)
 def test_a_controller_imports_what_a_trajectory_needs_before_its_loop_runs(node_env):
     """A made controller builds its first trajectory and every excitation signal without an
     import: imported by the first trajectory, on the trajectories thread, scipy held the GIL
-    ~0.4 s in long C calls and both loops stood still 50-105 ms (the plant "held up" in 8 of 9
+    ~0.4 s in long C calls and both loops stood still 50-105 ms (the plant "held up" in 15 of 16
     `draw` starts at real-time priority)."""
     r = subprocess.run([sys.executable, '-c', FIRST_USE], capture_output=True, text=True,
                        timeout=60, env=node_env)

@@ -82,6 +82,11 @@ class ControllerNode(ros_params.RegisterNode):
     NODE_NAME = 'controller'
 
     def __init__(self, **kwargs):
+        # The worker threads' queues first: destroy_node ends the threads through them, also
+        # for a node refused half-made (a bad parameter), which the context's cleanup destroys.
+        self.trajectories: queue.SimpleQueue = queue.SimpleQueue()     # raw messages in
+        self.prepared: queue.SimpleQueue = queue.SimpleQueue()         # built, to start
+        self.gathers: queue.SimpleQueue = queue.SimpleQueue()     # (axis, Gather, meta)
         super().__init__(self.NODE_NAME, **kwargs)
         self.globals_table, self.axis_table = CONTROLLER_GLOBAL, CONTROLLER_AXIS
         self.consistency = consistency
@@ -122,11 +127,9 @@ class ControllerNode(ros_params.RegisterNode):
         # What they and the excitation runs use of scipy is imported now, before the loop runs
         # (~0.6 s of start-up): imported by the first trajectory on that thread, it held the
         # GIL in long C calls for ~0.4 s, and both loops stood still 50-105 ms (the plant
-        # "held up" in 8 of 9 `draw` starts at real-time priority, both threads FIFO 30).
+        # "held up" in 15 of 16 `draw` starts at real-time priority, both threads FIFO 30).
         for module in PRELOAD:
             importlib.import_module(module)
-        self.trajectories: queue.SimpleQueue = queue.SimpleQueue()     # raw messages in
-        self.prepared: queue.SimpleQueue = queue.SimpleQueue()         # built, to start
         self.create_subscription(JointTrajectory, md.JOINT_TRAJECTORY, self._on_raw_trajectory,
                                  10, raw=True)
         if not self.sim_time:
@@ -136,7 +139,6 @@ class ControllerNode(ros_params.RegisterNode):
                            for a in self.axis_names}
         self.runs = {a: 0 for a in self.axis_names}
         self.run_meta: dict[str, dict] = {}
-        self.gathers: queue.SimpleQueue = queue.SimpleQueue()     # (axis, Gather, meta)
         threading.Thread(target=self._gather_loop, name='gather', daemon=True).start()
         for a in self.axis_names:
             self._make_services(a)
@@ -412,9 +414,8 @@ class ControllerNode(ros_params.RegisterNode):
         # The worker threads end first: they hold the node, and a node alive at the
         # interpreter's exit outlives the extension modules (nanobind listed ruckig's objects
         # as ~30 lines of "leaked" on every stop).
-        for work in ('trajectories', 'gathers'):    # (a node refused half-made has none yet)
-            if hasattr(self, work):
-                getattr(self, work).put(None)
+        self.trajectories.put(None)
+        self.gathers.put(None)
         super().destroy_node()
 
     def _publish_diagnostics(self) -> None:
