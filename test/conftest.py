@@ -20,6 +20,27 @@ if sys.path[0] != REPO_ROOT:
     sys.path.insert(0, REPO_ROOT)
 
 
+def _compiled_stale() -> list[str]:
+    """Modules whose source changed after scripts/bootstrap compiled them (setup.py COMPILED):
+    the tree would run the old code. The extension module wins the import over its source."""
+    stale = []
+    for base, _, files in os.walk(os.path.join(REPO_ROOT, 'motion_ctrl')):
+        for f in files:
+            if f.endswith('.so'):
+                src = os.path.join(base, f.split('.')[0] + '.py')
+                if os.path.getmtime(src) > os.path.getmtime(os.path.join(base, f)):
+                    stale.append(os.path.relpath(src, REPO_ROOT))
+    return stale
+
+
+if _compiled_stale():
+    # (scripts/test bootstraps first; this is for a bare `pytest` after an edit)
+    print(f'conftest: {", ".join(_compiled_stale())} changed since compiled: scripts/bootstrap',
+          file=sys.stderr)
+    import subprocess
+    subprocess.run([os.path.join(REPO_ROOT, 'scripts', 'bootstrap')], check=True)
+
+
 import subprocess  # noqa: E402
 
 import pytest  # noqa: E402

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from motion_ctrl.core.backlash import BacklashCompensation, apply_correction, interpolate_table
-from motion_ctrl.core.registers import BacklashConfig
+from motion_ctrl.core.config import BacklashConfig
 
 UM = 1e-6
 MM = 1e-3

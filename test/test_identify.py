@@ -15,6 +15,7 @@ from motion_ctrl.core import excitation as ex
 from motion_ctrl.analysis import identify as idf
 from motion_ctrl.core import notch, registers
 from motion_ctrl.sim.plant import SlidePlant
+from motion_ctrl.core.config import LawConfig
 from motion_ctrl.core.servo_law import ServoLaw
 
 FS = 1000.0
@@ -324,7 +325,7 @@ def _servo_law_response(regs, ad, bd, gain, latency_ticks, seconds=3.0):
     r = registers.axis_defaults() | regs | dict(
         kp=regs['kp'] * gain, ki=regs['ki'] * gain, kd=regs['kd'] * gain,
         integration_mode='always', integration_limit=10.0, output_limit=10.0)
-    law.configure(registers.LawConfig.of(r))
+    law.configure(LawConfig.of(r))
     x = np.array([1e-6, 0.0, 1e-6, 0.0])
     prev = x[0]
     pending = [0.0] * latency_ticks

@@ -10,7 +10,7 @@ import pytest
 from kit import COUNT, INCH
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.backlash import BacklashCompensation, interpolate_table
-from motion_ctrl.core.registers import BacklashConfig
+from motion_ctrl.core.config import BacklashConfig
 
 UM = 1e-6
 

@@ -16,7 +16,8 @@ from msg_defs.status import Status
 from motion_ctrl.core.soft_limits import stopping_distance
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.profile import Profile
-from motion_ctrl.core.registers import INCH, ProfileConfig, axis_defaults
+from motion_ctrl.core.registers import INCH, axis_defaults
+from motion_ctrl.core.config import ProfileConfig
 
 S = Status
 T = 1e-3

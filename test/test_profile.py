@@ -10,7 +10,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from kit import INCH  # noqa: E402
 from motion_ctrl.core.profile import Profile  # noqa: E402
-from motion_ctrl.core.registers import CONTROLLER_AXIS, ProfileConfig  # noqa: E402
+from motion_ctrl.core.registers import CONTROLLER_AXIS  # noqa: E402
+from motion_ctrl.core.config import ProfileConfig  # noqa: E402
 
 T = 0.001          # 1 kHz servo period
 VMAX = 0.1

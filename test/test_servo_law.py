@@ -10,7 +10,6 @@ semantics"; seeds 000 = RMC Deadband Tolerance, 002 = PMAC Ixx34..Ixx39), in SI 
 
 The servo period is T = 1 ms throughout. No ROS.
 """
-import dataclasses
 import math
 
 import numpy as np
@@ -18,8 +17,8 @@ import pytest
 
 from kit import COUNT
 from motion_ctrl.core import notch
-from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, LawConfig,
-                                        axis_defaults, consistency)
+from motion_ctrl.core.registers import AXIS_REGISTERS, CONTROLLER_AXIS, axis_defaults, consistency
+from motion_ctrl.core.config import LawConfig, register_fields
 from motion_ctrl.core.servo_law import ServoLaw
 
 T = 1e-3
@@ -414,7 +413,7 @@ def test_reset_and_mode_change_clear_the_state():
 
 def servo_law_registers() -> set:
     """The registers the servo law reads: the fields of its typed configuration."""
-    return {f.name for f in dataclasses.fields(LawConfig) if f.init}
+    return set(register_fields(LawConfig))
 
 
 # unit and vendor register of each, from the manuals (PMAC Ixx, RMC, Galil)

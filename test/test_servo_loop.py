@@ -4,7 +4,8 @@ import pytest
 
 from kit import COUNT
 from motion_ctrl.core.axis import Axis
-from motion_ctrl.core.registers import AXIS_REGISTERS, CorrectionConfig, axis_defaults
+from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.core.config import CorrectionConfig
 from motion_ctrl.core.servo_loop import STREAM_SETTLE, ServoLoop
 from msg_defs.status import Status as S
 

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from motion_ctrl.core.registers import SettlingConfig
+from motion_ctrl.core.config import SettlingConfig
 from motion_ctrl.core.settling import MOTION_BITS, TIME_EPSILON, Settling
 from msg_defs.status import Status
 

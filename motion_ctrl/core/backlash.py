@@ -63,7 +63,7 @@ and never modifies what it is given.
 import math
 from numbers import Real
 
-from motion_ctrl.core.registers import BacklashConfig, defaults
+from motion_ctrl.core.config import BacklashConfig, defaults
 
 __all__ = ["interpolate_table", "apply_correction", "BacklashCompensation"]
 
@@ -134,8 +134,8 @@ class BacklashCompensation:
         self._direction = 1
         self._register = 0.0
         self._target = 0.0
-        self._extreme = None          # running extreme in the current direction
-        self._nominal = None          # last nominal commanded position seen
+        self._extreme: float | None = None   # running extreme in the current direction
+        self._nominal: float | None = None   # last nominal commanded position seen
         self._correction = 0.0
         self.configure(config or defaults(BacklashConfig))
 
@@ -257,12 +257,12 @@ class BacklashCompensation:
         return self._correction
 
     @property
-    def nominal_position(self):
+    def nominal_position(self) -> float | None:
         """Last nominal commanded position passed in: the one to REPORT (None before any)."""
         return self._nominal
 
     @property
-    def motor_position(self):
+    def motor_position(self) -> float | None:
         """Motor-loop target = nominal + correction. Servo use only, never report it as
         commanded."""
         if self._nominal is None:

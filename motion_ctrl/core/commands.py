@@ -227,7 +227,7 @@ class AxisCommands:
                     f'move reaches {a:g} m; stop first or wait for MOTION_DONE')
         return None
 
-    def move_to(self, target: float):
+    def move_to(self, target):        # (any input: refused with a reason unless a number)
         if not _number(target) or not math.isfinite(target):
             return False, f'{self.name}: target {target!r} is not a finite number'
         lo, hi = self._soft_lo, self._soft_hi
@@ -289,7 +289,7 @@ class AxisCommands:
         self._sticky &= ~_LIMIT
         return True, ''
 
-    def jog(self, velocity: float):
+    def jog(self, velocity):          # (any input, as move_to)
         if not _number(velocity) or not math.isfinite(velocity):
             return False, f'{self.name}: velocity {velocity!r} is not a finite number'
         reason = self._refuse_unless_ready() or self._refuse_below_stop('jog')

@@ -23,8 +23,10 @@
 """
 from __future__ import annotations
 
+from typing import Final
+
 from msg_defs.status import Status
-from motion_ctrl.core.registers import CorrectionConfig, defaults
+from motion_ctrl.core.config import CorrectionConfig, defaults
 
 _DONE = int(Status.MOTION_DONE)
 _IN_FINE = int(Status.IN_FINE_POSITION)
@@ -44,7 +46,10 @@ DIVERGED = 4
 class SampledCorrection:
     """The #CORRECT loop as a state machine stepped every servo tick."""
 
-    IDLE, MOVING, CORRECTING, DONE = 'idle', 'moving', 'correcting', 'done'
+    IDLE: Final = 'idle'
+    MOVING: Final = 'moving'
+    CORRECTING: Final = 'correcting'
+    DONE: Final = 'done'
 
     def __init__(self, config: CorrectionConfig | None = None):
         self.phase = self.IDLE

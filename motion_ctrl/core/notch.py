@@ -221,7 +221,7 @@ class Biquad:
     gain".  All-zero coefficients (the default) = pass-through.
     """
 
-    __slots__ = ('_g', '_b1', '_b2', '_a1', '_a2', '_x1', '_x2', '_y1', '_y2', '_coeffs')
+    __slots__ = ('_g', '_b1', '_b2', '_a1', '_a2', '_x1', '_x2', '_y1', '_y2', '_coeffs', 'passes')
 
     def __init__(self, n1=0.0, n2=0.0, d1=0.0, d2=0.0):
         self._x1 = self._x2 = self._y1 = self._y2 = 0.0
@@ -263,14 +263,17 @@ class Biquad:
         self._b2 = g * n2
         self._a1 = float(d1)
         self._a2 = float(d2)
+        # All-zero registers: y = x (the history still runs, so a notch set later starts
+        # from it); the servo law then need not peek at the output.
+        self.passes = not (n1 or n2 or d1 or d2)
 
     @property
-    def coefficients(self):
+    def coefficients(self) -> tuple[float, float, float, float]:
         """The registers as configured: (n1, n2, d1, d2)."""
         return self._coeffs
 
     @property
-    def numerator_gain(self):
+    def numerator_gain(self) -> float:
         """The normalising gain g = 1 / dc_gain applied to the numerator (1.0 = pass-through)."""
         return self._g
 

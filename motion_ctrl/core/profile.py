@@ -33,7 +33,7 @@ from typing import Protocol
 from ruckig import (ControlInterface, InputParameter, Result, Ruckig,
                     RuckigError, Trajectory)
 
-from motion_ctrl.core.registers import ProfileConfig, defaults
+from motion_ctrl.core.config import ProfileConfig, defaults
 
 __all__ = ['Path', 'Profile']
 
@@ -270,10 +270,10 @@ class Profile:
             self.raw_velocity = v
             self.raw_acceleration = a
         else:
-            p, v, a = self._traj.at_time(t)
-            self.raw_position = p[0]
-            self.raw_velocity = v[0]
-            self.raw_acceleration = a[0]
+            ps, vs, accs = self._traj.at_time(t)     # (lists: one degree of freedom)
+            self.raw_position = ps[0]
+            self.raw_velocity = vs[0]
+            self.raw_acceleration = accs[0]
 
     def _smooth(self, dt: float, x0p: float, x0v: float, x0a: float) -> None:
         """Galil IT: the exact solution of tau·y' = x − y over the step, x linear from its
@@ -400,6 +400,7 @@ class Profile:
         duration = self.duration
         if self.kind in ('position', 'path'):
             # Exactly the target: ruckig's end sample carries float residue.
+            assert self.target is not None      # (a position move or path has one)
             self.raw_position = self.target
         else:
             p = self._traj.at_time(duration)[0][0]

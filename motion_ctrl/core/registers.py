@@ -11,8 +11,8 @@ Galil manual's backlash slide (1 in = 40,000 motor counts = 10,000 linear counts
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
-from typing import TypeVar
+from dataclasses import dataclass
+
 
 INCH = 0.0254
 MOTOR_COUNTS_PER_M = 40000 / INCH     # 8,000 counts/rev on a 5.08 mm lead
@@ -374,120 +374,6 @@ def refusals(values: dict, table: dict | None = None, rules=None) -> list[str]:
     reasons = [f'unknown register {name!r}' for name in values if name not in table]
     reasons += [r for r in (table[n].check(v) for n, v in values.items() if n in table) if r]
     return reasons or rules(values)
-
-
-# -- typed configuration: what each core object reads, made once per register set -------------
-# Field names are register names; no field has a default (the table's is the only one), and
-# derived fields are computed once here so that a servo tick compares no strings and looks up
-# no keys.
-def _of(cls, values: dict, checked: bool = False):
-    """`cls` from the registers among `values` that it reads, refused (ValueError naming them)
-    by the table's one validation: each value by its row, then the rules among them. `checked`:
-    the whole set was validated already (Axis.configure), so it is not done again."""
-    picked = {f.name: values[f.name] for f in fields(cls) if f.init}
-    reasons = [] if checked else refusals(picked)
-    if reasons:
-        raise ValueError('; '.join(reasons))
-    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in picked.items()})
-
-
-_C = TypeVar('_C', bound='Config')
-
-
-class Config:
-    """A consumer's registers, read-only. `of(values)` makes one from a dict of register values
-    (extra keys ignored), refused with the table's reasons (ValueError) when one is bad."""
-    __slots__ = ()
-
-    @classmethod
-    def of(cls: type[_C], values: dict) -> _C:
-        return _of(cls, values)
-
-    @classmethod
-    def of_checked(cls: type[_C], values: dict) -> _C:
-        """`of` for a set that `refusals` has accepted already."""
-        return _of(cls, values, checked=True)
-
-
-@dataclass(frozen=True, slots=True)
-class LawConfig(Config):
-    """The servo law's registers (PMAC Ixx29..39, 63, 67..69; RMC deadband)."""
-    mode: str
-    kp: float
-    ki: float
-    kd: float
-    kvff: float
-    kaff: float
-    friction_ff: float
-    friction_ff_at_rest: float
-    bias: float
-    integration_mode: str
-    integration_limit: float
-    output_limit: float
-    output_deadband: float
-    deadband_tolerance: float
-    position_error_limit: float
-    notch_n1: float
-    notch_n2: float
-    notch_d1: float
-    notch_d2: float
-    position_mode: bool = field(init=False)       # mode position_* (else velocity_*)
-    pid: bool = field(init=False)                 # mode *_pid (else *_ipd)
-    integrate_at_rest: bool = field(init=False)   # integration_mode at_rest (Ixx34 = 1)
-
-    def __post_init__(self):
-        object.__setattr__(self, 'position_mode', self.mode.startswith('position'))
-        object.__setattr__(self, 'pid', self.mode.endswith('pid'))
-        object.__setattr__(self, 'integrate_at_rest', self.integration_mode == 'at_rest')
-
-    @property
-    def notch(self) -> tuple[float, float, float, float]:
-        return (self.notch_n1, self.notch_n2, self.notch_d1, self.notch_d2)
-
-
-@dataclass(frozen=True, slots=True)
-class SettlingConfig(Config):
-    """The settling criteria (RMP PositionToleranceFine/Coarse, VelocityTolerance,
-    SettlingTime)."""
-    fine_position_tolerance: float
-    coarse_position_tolerance: float
-    velocity_tolerance: float
-    settling_time: float
-
-
-@dataclass(frozen=True, slots=True)
-class CorrectionConfig(Config):
-    """Galil's sampled dual loop: when the correction moves end."""
-    correction_tolerance: float
-    correction_max_moves: int
-    load_counts_per_m: float
-    settling_time: float
-
-
-@dataclass(frozen=True, slots=True)
-class ProfileConfig(Config):
-    """The move generator's limits and smoothing (Galil SP / AC / DC / IT, PMAC Ixx16..21)."""
-    max_velocity: float
-    max_acceleration: float
-    max_jerk: float
-    smoothing: float
-
-
-@dataclass(frozen=True, slots=True)
-class BacklashConfig(Config):
-    """Backlash and leadscrew compensation (PMAC Ixx85..87, DEFINE BLCOMP, DEFINE COMP)."""
-    backlash_distance: float
-    backlash_takeup_rate: float
-    backlash_hysteresis: float
-    backlash_table: tuple
-    backlash_table_spacing: float
-    leadscrew_table: tuple
-    leadscrew_table_spacing: float
-
-
-def defaults(cls):
-    """`cls` (a configuration above) with the table's defaults."""
-    return cls.of(axis_defaults(AXIS_REGISTERS))
 
 
 # Plant parameters (per axis `<axis>.<name>` on the plant node): the Galil backlash slide.

@@ -50,7 +50,8 @@ from __future__ import annotations
 
 from motion_ctrl.core import deadband as db
 from motion_ctrl.core.notch import Biquad
-from motion_ctrl.core.registers import AXIS_REGISTERS, LawConfig, axis_defaults
+from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
+from motion_ctrl.core.config import LawConfig
 
 
 def _clamp(v: float, lo: float, hi: float) -> float:
@@ -58,9 +59,8 @@ def _clamp(v: float, lo: float, hi: float) -> float:
 
 
 def _finish(c: LawConfig, v: float, raw_error: float, target_stopped: bool) -> float:
-    """The output deadband (with ratioing) on the notch output, when one is set."""
-    if c.output_deadband == 0.0:
-        return v
+    """The output deadband (with ratioing) on the notch output (the callers skip it when
+    output_deadband is 0)."""
     return db.apply_deadband(v, c.output_deadband, raw_error, c.deadband_tolerance,
                              target_stopped, c.position_mode)
 
@@ -92,14 +92,23 @@ class PidLaw:
                 held = i_new != free                  # the rule stopped some growth
         loop = c.kp * error - c.kd * rate
         limit = c.output_limit
+        notch = law.notch
         # No integration while the output saturates (PMAC Ixx69): test this tick's output
-        # with the integration before committing it (when there is one to test).
-        if i_new != i_old and abs(_finish(c, law.notch.peek(loop + i_new + ff), raw,
-                                          stopped)) >= limit:
-            i_new = i_old
-            held = True
+        # with the integration before committing it (when there is one to test; a notch
+        # that passes its input through needs no peek).
+        if i_new != i_old:
+            test = loop + i_new + ff
+            if not notch.passes:
+                test = notch.peek(test)
+            if c.output_deadband:
+                test = _finish(c, test, raw, stopped)
+            if abs(test) >= limit:
+                i_new = i_old
+                held = True
         law.integral = i_new
-        out = _finish(c, law.notch.step(loop + i_new + ff), raw, stopped)
+        out = notch.step(loop + i_new + ff)
+        if c.output_deadband:
+            out = _finish(c, out, raw, stopped)
         law.integrator_held = held or abs(out) >= limit
         return out
 
@@ -129,7 +138,8 @@ class IpdLaw:
         co_clamped = _clamp(co, -room - ff, room - ff)
         law.co = law.integral = co_clamped
         law.integrator_held = held or co_clamped != co
-        return _finish(c, law.notch.step(law.co + ff), raw, stopped)
+        out = law.notch.step(law.co + ff)
+        return _finish(c, out, raw, stopped) if c.output_deadband else out
 
 
 class ServoLaw:
@@ -169,7 +179,7 @@ class ServoLaw:
         self.output = 0.0
         self.saturated = self.integrator_held = self.anti_hunting = False
 
-    def update(self, dt: float, *, cmd_pos: float, cmd_vel: float, cmd_acc: float,
+    def update(self, dt: float, cmd_pos: float, cmd_vel: float, cmd_acc: float,
                act_pos: float, act_vel: float, vel_loop_vel: float, vel_loop_acc: float,
                target_stopped: bool, half_count: float) -> float:
         """One servo tick. act_pos/act_vel: the position-loop encoder; vel_loop_vel/acc: the

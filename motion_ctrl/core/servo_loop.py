@@ -246,7 +246,7 @@ class ServoLoop:
             out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call {a}/reset'))
         self._faults[a] = faults
         diverged = axis.sampled.diverged
-        if diverged is not None and self._diverged.get(a) is not diverged:
+        if diverged is not None and self._diverged.get(a) != diverged:
             out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
                                        f'from {diverged[0]} to {diverged[1]} counts'))
         self._diverged[a] = diverged

@@ -57,7 +57,7 @@ import numbers
 
 from msg_defs.status import Status
 
-from motion_ctrl.core.registers import SettlingConfig, defaults
+from motion_ctrl.core.config import SettlingConfig, defaults
 
 __all__ = ['Settling', 'TIME_EPSILON', 'MOTION_BITS', 'STOP_KINDS', 'status_word']
 
@@ -149,12 +149,12 @@ class Settling:
         self.configure(config or defaults(SettlingConfig))
         self.clock = 0.0
         self._bits = 0            # last motion word, plain int (``bits`` gives the Status)
-        self.settle_start = None
+        self.settle_start: float | None = None
         self._held = 0.0          # time [s] the timed criterion has held, summed from 0
         self._done = False        # MOTION_DONE latched for the current move
         self.mode = IDLE
-        self.target = None
-        self.target_velocity = None
+        self.target: float | None = None
+        self.target_velocity: float | None = None
 
     # ------------------------------------------------------------------ configuration
     def configure(self, config: SettlingConfig) -> None:
@@ -287,6 +287,7 @@ class Settling:
         criterion); MOTION_DONE once settled, latched for the move."""
         bits = 0
         target = self.target
+        assert target is not None         # (a position move has one)
         at_target = command_position == target
         error = abs(target - actual_position)
         if at_target:
@@ -310,6 +311,7 @@ class Settling:
         evaluated during the constant velocity portion ... Whenever Criteria 1 is not
         satisfied, MOTION_AT_VELOCITY is set to FALSE and the settling timer is reset"."""
         tv = self.target_velocity
+        assert tv is not None             # (a velocity move has one)
         if tv == 0.0:
             holds = not moving and abs(actual_velocity) <= self.velocity_tolerance
         else:

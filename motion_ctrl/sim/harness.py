@@ -20,6 +20,8 @@ from motion_ctrl.sim.plant import SlidePlant
 from motion_ctrl.core.registers import CONTROLLER_GLOBAL
 from motion_ctrl.core.servo_loop import ServoLoop
 
+_DONE = int(Status.MOTION_DONE)
+
 
 @dataclass
 class Trace:
@@ -45,6 +47,7 @@ class Harness:
                               sim_time=True)
         self.plants = {a: SlidePlant(**(plant or {})) for a in axes}
         self.axis, self.plant = self.axes[axes[0]], self.plants[axes[0]]
+        self.latency = latency_ticks
         self.delay = {a: deque([0.0] * latency_ticks) for a in axes}
         self.trace = Trace() if record else None
         self.ticks = 0
@@ -57,15 +60,22 @@ class Harness:
 
     def tick(self, disturbance=None) -> None:
         now = self.ticks * self.T
+        loop = self.loop
         for a, plant in self.plants.items():
             motor, load = plant.encoder_counts()
-            self.loop.feedback(a, motor, load, now)
-        tick = self.loop.tick(now)
-        outputs = dict(zip(tick.names, tick.outputs)) if tick is not None else {}
+            loop.feedback(a, motor, load, now)
+        tick = loop.tick(now)
+        outputs: dict[str, float] = {}
+        if tick is not None:
+            for a, volts in zip(tick.names, tick.outputs):
+                outputs[a] = volts
         for a, plant in self.plants.items():
-            self.delay[a].append(outputs.get(a, 0.0))
-            plant.step(self.delay[a].popleft(), self.T)
-        out = outputs.get(self.axis.name, 0.0)
+            volts = outputs.get(a, 0.0)
+            if self.latency:
+                delay = self.delay[a]
+                delay.append(volts)
+                volts = delay.popleft()
+            plant.step(volts, self.T)
         self.ticks += 1
         if disturbance:
             disturbance(self)
@@ -77,8 +87,8 @@ class Harness:
             tr.actual.append(a.actual_pos)
             tr.motor.append(self.plant.x_m)
             tr.load.append(self.plant.x_l)
-            tr.output.append(out)
-            tr.status.append(int(a.status))
+            tr.output.append(outputs.get(a.name, 0.0))
+            tr.status.append(a.word)
             tr.following_error.append(a.following_error)
 
     def run(self, seconds: float, until=None, disturbance=None) -> bool:
@@ -98,7 +108,7 @@ class Harness:
             raise ValueError(reason)
         start = self.time
         self.tick()   # the move starts on this tick; MOTION_DONE of the last move is cleared
-        done = self.run(timeout, until=lambda h: h.axis.status & Status.MOTION_DONE)
+        done = self.run(timeout, until=lambda h: h.axis.word & _DONE)
         return self.time - start if done else None
 
     def load_error_counts(self, target: float) -> float:

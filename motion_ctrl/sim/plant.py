@@ -30,19 +30,23 @@ held (the rest would change nothing), and its floats are those of running every 
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from motion_ctrl.core.registers import PLANT_PARAMETERS, axis_defaults, plant_consistency
 
-TWO_PI = 2.0 * math.pi
+TWO_PI: Final = 2.0 * math.pi
 # Sticking window of the Karnopp friction model: below this speed a mass may stick.
-_STICK_SPEED = 1e-7
+_STICK_SPEED: Final = 1e-7
 # End stops: a stiff, well damped wall.
-_WALL_STIFFNESS = 1e8
-_WALL_DAMPING = 2e4
+_WALL_STIFFNESS: Final = 1e8
+_WALL_DAMPING: Final = 2e4
 
 
-def _substeps(n, h, x_m, v_m, x_l, v_l, pitch, drive, m_visc, mm, m_coul, m_stic,
-              ml, l_visc, l_coul, l_stic, k, c, b, travel_min, travel_max, brake):
+def _substeps(n: int, h: float, x_m: float, v_m: float, x_l: float, v_l: float, pitch: float,
+              drive: float, m_visc: float, mm: float, m_coul: float, m_stic: float, ml: float,
+              l_visc: float, l_coul: float, l_stic: float, k: float, c: float, b: float,
+              travel_min: float, travel_max: float,
+              brake: bool) -> tuple[float, float, float, float]:
     """n semi-implicit Euler substeps of h: the new (x_m, v_m, x_l, v_l).
 
     Each mass gets one Karnopp friction step (written out twice below, for speed: this loop is
@@ -117,10 +121,12 @@ def _substeps(n, h, x_m, v_m, x_l, v_l, pitch, drive, m_visc, mm, m_coul, m_stic
 class SlidePlant:
     """One axis of the backlash slide. `step(volts, dt)` advances the physics by dt seconds."""
 
-    def __init__(self, substep_rate: float = 20000.0, **params):
-        self.substep_rate = substep_rate
-        self._dt = (math.nan, math.nan)  # (dt, substep_rate) of the last step: its substeps
-        self._substep = (1, 0.0)         # (count, length)
+    # (substep_rate unannotated: mypyc 2.4 fails on an annotated default before **params)
+    def __init__(self, substep_rate=20000.0, **params) -> None:
+        self.substep_rate: float = substep_rate
+        self._step_dt = self._step_rate = math.nan   # dt and substep_rate of the last step,
+        self._sub_n = 1                              # and its substeps: count and length
+        self._sub_h = 0.0
         self.params = axis_defaults(PLANT_PARAMETERS)
         self.configure(**params)
         self.x_m = self.v_m = 0.0     # motor side, load-equivalent [m, m/s]
@@ -132,7 +138,7 @@ class SlidePlant:
         self.command_age = math.inf   # plant time since it came [s]
         self.tripped = True           # output held at 0 V by the watchdog in the last cycle
 
-    def configure(self, **changes):
+    def configure(self, **changes) -> None:
         """Change parameters (validated together; nothing changes if one is refused)."""
         from motion_ctrl.core.registers import PLANT_AXIS
         new = dict(self.params)
@@ -158,20 +164,28 @@ class SlidePlant:
         self._m_stic = p['motor_stiction'] * self._rad_per_m
         self.motor_counts_per_m = p['motor_counts_per_rev'] / p['lead']
         self.load_counts_per_m = 1.0 / p['load_resolution']
-        # What a step reads, looked up once here (params change only through configure).
-        self._pitch = (p['pitch_error_slope'], p['pitch_error_amplitude'],
-                       p['pitch_error_period'])
-        self._limit = p['amplifier_limit']
-        self._constants = (self.motor_mass, self._m_coul, self._m_stic, p['slide_mass'],
-                           p['slide_viscous'], p['slide_coulomb'], p['slide_stiction'],
-                           p['screw_stiffness'], p['screw_damping'], p['backlash'],
-                           p['travel_min'], p['travel_max'], p['brake'] == 1)
+        # What a step reads, looked up once here (params change only through configure), as
+        # typed floats: compiled (setup.py), step passes them to _substeps as native doubles.
+        self._pitch_slope: float = p['pitch_error_slope']
+        self._pitch_amplitude: float = p['pitch_error_amplitude']
+        self._pitch_period: float = p['pitch_error_period']
+        self._limit: float = p['amplifier_limit']
+        self._slide_mass: float = p['slide_mass']
+        self._l_visc: float = p['slide_viscous']
+        self._l_coul: float = p['slide_coulomb']
+        self._l_stic: float = p['slide_stiction']
+        self._k: float = p['screw_stiffness']
+        self._c: float = p['screw_damping']
+        self._backlash: float = p['backlash']
+        self._travel_min: float = p['travel_min']
+        self._travel_max: float = p['travel_max']
+        self._brake: bool = p['brake'] == 1
 
     # -- derived quantities -------------------------------------------------------------------
     def pitch_error(self, x_m: float) -> float:
         """Displacement of the nut from the ideal screw position at motor position x_m [m]."""
-        slope, amplitude, period = self._pitch
-        return slope * x_m + amplitude * math.sin(TWO_PI * x_m / period)
+        return self._pitch_slope * x_m + self._pitch_amplitude * math.sin(
+            TWO_PI * x_m / self._pitch_period)
 
     @property
     def resonance_hz(self) -> float:
@@ -226,15 +240,18 @@ class SlidePlant:
         if not -lim <= volts <= lim:  # (a nan fails this test too)
             volts = 0.0 if not math.isfinite(volts) else lim if volts > 0.0 else -lim
         self.volts = volts            # a broken command never reaches the motor; others clipped
-        if (dt, self.substep_rate) != self._dt:
+        if dt != self._step_dt or self.substep_rate != self._step_rate:
             n = max(1, math.ceil(dt * self.substep_rate - 1e-9))
-            self._dt, self._substep = (dt, self.substep_rate), (n, dt / n)
-        n, h = self._substep
+            self._step_dt, self._step_rate = dt, self.substep_rate
+            self._sub_n, self._sub_h = n, dt / n
+        n, h = self._sub_n, self._sub_h
         x_m = self.x_m
         # The pitch error changes by nanometres within one step: evaluated once per step.
-        slope, amplitude, period = self._pitch
-        pitch = slope * x_m + amplitude * math.sin(TWO_PI * x_m / period)
+        pitch = self._pitch_slope * x_m + self._pitch_amplitude * math.sin(
+            TWO_PI * x_m / self._pitch_period)
         self.x_m, self.v_m, self.x_l, self.v_l = _substeps(
             n, h, x_m, self.v_m, self.x_l, self.v_l, pitch, self._force_per_volt * volts,
-            self._m_visc_braked if braking else self._m_visc, *self._constants)
+            self._m_visc_braked if braking else self._m_visc, self.motor_mass, self._m_coul,
+            self._m_stic, self._slide_mass, self._l_visc, self._l_coul, self._l_stic, self._k,
+            self._c, self._backlash, self._travel_min, self._travel_max, self._brake)
         self.time += dt

@@ -37,7 +37,8 @@ def _pct(values, q):
 def bench_core(n: int = 20000) -> list[tuple[str, float]]:
     from motion_ctrl.core.axis import Axis
     from motion_ctrl.core.profile import Profile
-    from motion_ctrl.core.registers import ProfileConfig, SettlingConfig, axis_defaults
+    from motion_ctrl.core.registers import axis_defaults
+    from motion_ctrl.core.config import ProfileConfig, SettlingConfig
     from motion_ctrl.core.settling import Settling
     r = axis_defaults()
     rows = []
@@ -280,7 +281,11 @@ def main(argv=None) -> int:
           f'{os.cpu_count()} CPUs, Python {platform.python_version()}, {platform.system()} '
           f'{platform.release()}')
     if 'core' in sections:
-        print('\n## core (per servo tick, one axis, no ROS)\n')
+        from motion_ctrl.core import axis
+        from motion_ctrl.sim import plant
+        built = ('compiled by mypyc' if axis.__file__.endswith('.so') and
+                 plant.__file__.endswith('.so') else 'plain Python (not compiled)')
+        print(f'\n## core (per servo tick, one axis, no ROS; servo tick and plant {built})\n')
         print('| what | µs per tick |\n|---|---:|')
         for name, us in bench_core():
             print(f'| {name} | {us:.1f} |')

@@ -1,0 +1,138 @@
+"""Typed configuration: what each core object reads of the register table, made once per
+register set and validated by the table's one path (`registers.refusals`).
+
+Field names are register names; no field has a default (the table's is the only one), and
+derived fields are computed once here, so that a servo tick compares no strings and looks up no
+keys. Compiled by mypyc with the servo tick's modules (setup.py): the tick reads these fields as
+native floats.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import TypeVar
+
+from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults, refusals
+
+_C = TypeVar('_C', bound='Config')
+# A field computed from the registers (Config.derive), not one of them. (Not __post_init__ with
+# object.__setattr__: compiled by mypyc 2.4, that failed on LawConfig's bool fields.)
+DERIVED = {'derived': True}
+
+
+def register_fields(cls) -> list[str]:
+    """The fields of configuration `cls` that are registers (the others are DERIVED)."""
+    return [f.name for f in fields(cls) if not f.metadata]
+
+
+def _of(cls, values: dict, checked: bool = False):
+    """`cls` from the registers among `values` that it reads, refused (ValueError naming them)
+    by the table's one validation: each value by its row, then the rules among them. `checked`:
+    the whole set was validated already (Axis.configure), so it is not done again."""
+    picked = {name: values[name] for name in register_fields(cls)}
+    reasons = [] if checked else refusals(picked)
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    picked = {k: tuple(v) if isinstance(v, list) else v for k, v in picked.items()}
+    return cls(**picked, **cls.derive(picked))
+
+
+class Config:
+    """A consumer's registers, read-only. `of(values)` makes one from a dict of register values
+    (extra keys ignored), refused with the table's reasons (ValueError) when one is bad."""
+    __slots__ = ()
+
+    @classmethod
+    def of(cls: type[_C], values: dict) -> _C:
+        return _of(cls, values)
+
+    @staticmethod
+    def derive(values: dict) -> dict:
+        """The derived fields (marked DERIVED) from the registers'."""
+        return {}
+
+    @classmethod
+    def of_checked(cls: type[_C], values: dict) -> _C:
+        """`of` for a set that `refusals` has accepted already."""
+        return _of(cls, values, checked=True)
+
+
+@dataclass(frozen=True, slots=True)
+class LawConfig(Config):
+    """The servo law's registers (PMAC Ixx29..39, 63, 67..69; RMC deadband)."""
+    mode: str
+    kp: float
+    ki: float
+    kd: float
+    kvff: float
+    kaff: float
+    friction_ff: float
+    friction_ff_at_rest: float
+    bias: float
+    integration_mode: str
+    integration_limit: float
+    output_limit: float
+    output_deadband: float
+    deadband_tolerance: float
+    position_error_limit: float
+    notch_n1: float
+    notch_n2: float
+    notch_d1: float
+    notch_d2: float
+    position_mode: bool = field(metadata=DERIVED)       # mode position_* (else velocity_*)
+    pid: bool = field(metadata=DERIVED)                 # mode *_pid (else *_ipd)
+    integrate_at_rest: bool = field(metadata=DERIVED)   # integration_mode at_rest (Ixx34 = 1)
+
+    @staticmethod
+    def derive(values: dict) -> dict:
+        mode = values['mode']
+        return {'position_mode': mode.startswith('position'), 'pid': mode.endswith('pid'),
+                'integrate_at_rest': values['integration_mode'] == 'at_rest'}
+
+    @property
+    def notch(self) -> tuple[float, float, float, float]:
+        return (self.notch_n1, self.notch_n2, self.notch_d1, self.notch_d2)
+
+
+@dataclass(frozen=True, slots=True)
+class SettlingConfig(Config):
+    """The settling criteria (RMP PositionToleranceFine/Coarse, VelocityTolerance,
+    SettlingTime)."""
+    fine_position_tolerance: float
+    coarse_position_tolerance: float
+    velocity_tolerance: float
+    settling_time: float
+
+
+@dataclass(frozen=True, slots=True)
+class CorrectionConfig(Config):
+    """Galil's sampled dual loop: when the correction moves end."""
+    correction_tolerance: float
+    correction_max_moves: int
+    load_counts_per_m: float
+    settling_time: float
+
+
+@dataclass(frozen=True, slots=True)
+class ProfileConfig(Config):
+    """The move generator's limits and smoothing (Galil SP / AC / DC / IT, PMAC Ixx16..21)."""
+    max_velocity: float
+    max_acceleration: float
+    max_jerk: float
+    smoothing: float
+
+
+@dataclass(frozen=True, slots=True)
+class BacklashConfig(Config):
+    """Backlash and leadscrew compensation (PMAC Ixx85..87, DEFINE BLCOMP, DEFINE COMP)."""
+    backlash_distance: float
+    backlash_takeup_rate: float
+    backlash_hysteresis: float
+    backlash_table: tuple
+    backlash_table_spacing: float
+    leadscrew_table: tuple
+    leadscrew_table_spacing: float
+
+
+def defaults(cls: type[_C]) -> _C:
+    """`cls` (a configuration above) with the table's defaults."""
+    return cls.of(axis_defaults(AXIS_REGISTERS))
