@@ -41,3 +41,38 @@ def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
     assert 'x.friction_ff_at_rest' in regs
     for name in ('open_loop.png', 'steps.png'):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+# Issue 14, must-show 2 where the resonance limits the loop. The screw ten times softer
+# alone (resonance 77 Hz) is not such a plant: there autotune rightly proposes no notch (README;
+# test_autotune). Under a slide four times as heavy (20 kg, slide / motor 0.65; its friction
+# four times too, so that it is held against the nut as firmly as the default slide) the
+# resonance (46 Hz) does: lockstep runs of 2026-11-24: identify 46.3 Hz twice (the plant's
+# 45.8); the shipped gains 0.7 dB / -56° on the measured loop, and the +2 in move never came to
+# rest (output p-p 0.14 V); the proposal a notch at 48.6 Hz (9.4 dB down at 46.3), 13.4 dB /
+# 45.7°, ki 4.3 × that without one, every move at rest, output p-p 0.000 V, final error 0.
+HEAVY_SLIDE = ['--plant', 'x.screw_stiffness:=1.0e6', '--plant', 'x.slide_mass:=20.0',
+               '--plant', 'x.slide_coulomb:=40.0', '--plant', 'x.slide_stiction:=42.0']
+
+
+@pytest.mark.timeout(240)
+def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
+                          '--lockstep', '--apply', '-o', str(tmp_path)] + HEAVY_SLIDE,
+                         env=node_env, capture_output=True, text=True, timeout=230)
+    print(run.stdout[-5000:])
+    assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    ident = yaml.safe_load((tmp_path / 'identify' / 'identify.yaml').read_text())
+    assert ident['resonance_hz'] == pytest.approx(45.8, rel=0.05)
+    regs = yaml.safe_load((tmp_path / 'autotune.yaml').read_text())['controller'][
+        'ros__parameters']
+    assert regs['x.notch_n1'] != 0.0 and regs['x.notch_d2'] != 0.0, run.stdout[-3000:]
+    assert 'the resonance limits the loop' in run.stdout
+    v = yaml.safe_load((tmp_path / 'verification.yaml').read_text())
+    assert v['before']['gain_margin_db'] < 8.0 or v['before']['phase_margin_deg'] < 45.0
+    assert v['after']['gain_margin_db'] >= 8.0 and v['after']['phase_margin_deg'] >= 45.0
+    assert len(v['after']['moves']) == 3
+    for a in v['after']['moves']:
+        assert a['settle_ms'] < 5000.0, a
+        assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
