@@ -371,7 +371,8 @@ class Proposal:
     limit: str                           # what bounded the crossover
     shape: tuple
     notes: list = field(default_factory=list)
-    #: the rule's diagnosis: without a notch, a margin missed at the resonance bounds the loop
+    #: step 1 of the rule: without a notch, some PID shape stops at a margin missed at the
+    #: resonance (or no gains meet the preset at all); whether a notch then pays is step 3
     resonance_limits: bool = False
 
     @property
