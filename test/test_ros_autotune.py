@@ -86,3 +86,39 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
     for a in v['after']['moves']:
         assert a['settle_ms'] < 5000.0, a
         assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
+
+
+@pytest.mark.timeout(240)
+def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env, tmp_path):
+    """The screw ten times softer (resonance 76.8 Hz) under the default 5 kg slide: the shipped
+    gains lose margin (2026-11-24: 3.7 dB / 27.0° measured), autotune finds the resonance and,
+    by its rule, no notch (the loop is bounded by the phase margin at its 32 Hz crossover, not
+    at the resonance); the proposal meets 8 dB / 45° on the measured loop and every move ends
+    at rest without ringing (11.1 dB / 45.6°, 39 / 38 / 38 ms against 665 / 669 / 660 ms,
+    output p-p 0.000 V)."""
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
+                          '--lockstep', '--apply', '-o', str(tmp_path), '--plant',
+                          'x.screw_stiffness:=1.0e6'],
+                         env=node_env, capture_output=True, text=True, timeout=230)
+    print(run.stdout[-5000:])
+    path = tmp_path / 'identify' / 'identify.yaml'
+    assert path.is_file(), f'identify failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    ident = yaml.safe_load(path.read_text())
+    if ident['resonance_hz'] != pytest.approx(76.8, rel=0.05):
+        pytest.xfail(f'identify measured a resonance of {ident["resonance_hz"]:.1f} Hz (the '
+                     'plant: 76.8 Hz): identify is not reliable yet (issue 14)')
+    assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    regs = yaml.safe_load((tmp_path / 'autotune.yaml').read_text())['controller'][
+        'ros__parameters']
+    assert regs['x.notch_n1'] == 0.0 and regs['x.notch_d2'] == 0.0, run.stdout[-3000:]
+    assert 'no notch: the resonance does not limit the loop' in run.stdout
+    v = yaml.safe_load((tmp_path / 'verification.yaml').read_text())
+    assert v['before']['gain_margin_db'] < 8.0 and v['before']['phase_margin_deg'] < 45.0
+    assert v['after']['gain_margin_db'] >= 8.0 and v['after']['phase_margin_deg'] >= 45.0
+    assert len(v['after']['moves']) == 3
+    for b, a in zip(v['before']['moves'], v['after']['moves']):
+        assert a['settle_ms'] < b['settle_ms'], (b, a)
+        assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
+        assert a['overshoot_counts'] <= 2.0, a
