@@ -447,21 +447,27 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
 
     def per_shape(nregs, shapes, beat=0.0) -> dict:
         """{shape: ((ki, bandwidth), registers, registers just above)}: each shape's largest
-        feasible crossover (bisection), with the registers of its infeasible end. Shapes whose
-        ki cannot exceed `beat` even at the top of the search (ki = J·ωc³/(a²·b)) are left
-        out."""
+        feasible crossover (bisection), with the registers of its infeasible end. With `beat`
+        > 0 only shapes that can give more ki: the bisection starts at the crossover that gives
+        ki = beat (ki = J·ωc³/(a²·b)), and a shape infeasible there is left out (one look
+        instead of a bisection: most notch candidates end there)."""
         out = {}
         for a, b in shapes:
-            if J * top ** 3 / (a * a * b) <= beat:
-                continue
             regs = lambda wc: _shape_gains(J, wc, a, b) | nregs   # noqa: E731
-            # The bisection needs a feasible low end. The lowest crossover is not always one:
-            # a viscous pole fitted above it (the band starts at 20 Hz, so the fit barely
-            # sees it) can keep the loop off 0 dB on the grid there.
-            lo = next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
-                       if feasible(regs(2 * math.pi * f0))[0]), None)
-            if lo is None:
-                continue
+            if beat > 0.0:
+                need = (beat * a * a * b / J) ** (1.0 / 3.0)
+                if need >= top or not feasible(regs(need))[0]:
+                    continue
+                lo = math.log(need)
+            else:
+                # The bisection needs a feasible low end. The lowest crossover is not always
+                # one: a viscous pole fitted above it (the band starts at 20 Hz, so the fit
+                # barely sees it) can keep the loop off 0 dB on the grid there.
+                low = next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
+                            if feasible(regs(2 * math.pi * f0))[0]), None)
+                if low is None:
+                    continue
+                lo = low
             hi = math.log(top)
             for _ in range(11):
                 mid = 0.5 * (lo + hi)
@@ -504,10 +510,14 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
     held = {s: w for s, w in held.items() if w}
     search = SHAPES if notch is True or plain is None else tuple(s for s in SHAPES if s in held)
     with_notch = None
+    # by default only a notch that pays is of interest: the search looks for ki above
+    # NOTCH_KEEP_GAIN × the best without one, and then above the best notch so far
+    floor = NOTCH_KEEP_GAIN * plain[0][0] if notch is None and plain is not None else 0.0
+    candidates = _notch_candidates(axis)
     if notch is not False and search:
-        for c in _notch_candidates(axis):
-            got = best(per_shape(c.registers(T), search,
-                                 with_notch[0][0][0] if with_notch is not None else 0.0))
+        for c in candidates:
+            beat = max(floor, with_notch[0][0][0] if with_notch is not None else 0.0)
+            got = best(per_shape(c.registers(T), search, beat))
             if got is not None and (with_notch is None or got[0] > with_notch[0][0]):
                 with_notch = (got, c)
     notes = []
@@ -543,7 +553,10 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
                          'without one)')
         elif with_notch is None:
             notes.append(f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
-                         'resonance without one, but no notch of the family meets the margins')
+                         f'resonance without one, but none of the {len(candidates)} notches of '
+                         f'the family gives them {NOTCH_KEEP_GAIN:g} × the ki without one '
+                         f'({pki:.4g}): their phase lag at the crossover costs more than their '
+                         'cut at the resonance buys')
         else:
             notes.append(f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
                          f'resonance without one, but the best notch of the family ({desc}) '
