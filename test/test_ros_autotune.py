@@ -48,8 +48,8 @@ def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
 # alone (resonance 77 Hz) is not such a plant: there autotune rightly proposes no notch (README;
 # test_autotune). Under a slide four times as heavy (20 kg, slide / motor 0.65; its friction
 # four times too, so that it is held against the nut as firmly as the default slide) the
-# resonance (46 Hz) does. Lockstep runs of 2026-11-24: identify 46.0-47.0 Hz in seven runs of
-# eight (the plant's 45.8; the eighth went wrong, below); the shipped gains 0.5-0.7 dB and a
+# resonance (46 Hz) does. Lockstep runs of 2026-11-24: identify 46.0-47.6 Hz in eight runs of
+# nine (the plant's 45.8; the ninth went wrong, below); the shipped gains 0.5-0.7 dB and a
 # negative phase margin on the measured loop, and one of their moves never came to rest
 # (output p-p 0.14 V); the proposal a notch at 46.0-49.0 Hz, 1.6-7.2 × the ki without one,
 # 8.2-13.4 dB / 45.5-52.1°, every move at rest, output p-p 0.000-0.001 V, final error 0
