@@ -6,6 +6,7 @@ the measured open loop, and after it every move settles faster than with the shi
 within 1 count and with at most 2 counts of overshoot, no ringing at rest (output p-p < 0.2 V),
 and the median settle within the issue's 150 ms (2026-11-24: 717-731 ms before, 33-37 after;
 253-313 before the breakaway aid, friction_ff_at_rest)."""
+import math
 import subprocess
 import sys
 
@@ -41,3 +42,88 @@ def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
     assert 'x.friction_ff_at_rest' in regs
     for name in ('open_loop.png', 'steps.png'):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+# Issue 14, must-show 2 where the resonance limits the loop. The screw ten times softer
+# alone (resonance 77 Hz) is not such a plant: there autotune rightly proposes no notch (README;
+# test_autotune). Under a slide four times as heavy (20 kg, slide / motor 0.65; its friction
+# four times too, so that it is held against the nut as firmly as the default slide) the
+# resonance (46 Hz) does. Lockstep runs of 2026-11-24: identify 46.0-47.6 Hz in eight runs of
+# nine (the plant's 45.8; the ninth went wrong, below); the shipped gains 0.5-0.7 dB and a
+# negative phase margin on the measured loop, and one of their moves never came to rest
+# (output p-p 0.14 V); the proposal a notch at 46.0-49.0 Hz, 1.6-7.2 × the ki without one,
+# 8.2-13.4 dB / 45.5-52.1°, every move at rest, output p-p 0.000-0.001 V, final error 0
+# (settle 0.01-5.1 s, overshoot 0-101 counts: identify's kaff is -41 % to +12 % on this slide,
+# and the last count is crept in against the slide's stiction; README).
+HEAVY_SLIDE = ['--plant', 'x.screw_stiffness:=1.0e6', '--plant', 'x.slide_mass:=20.0',
+               '--plant', 'x.slide_coulomb:=40.0', '--plant', 'x.slide_stiction:=42.0']
+
+
+@pytest.mark.timeout(240)
+def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
+                          '--lockstep', '--apply', '-o', str(tmp_path)] + HEAVY_SLIDE,
+                         env=node_env, capture_output=True, text=True, timeout=230)
+    print(run.stdout[-5000:])
+    path = tmp_path / 'identify' / 'identify.yaml'
+    assert path.is_file(), f'identify failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    ident = yaml.safe_load(path.read_text())
+    if ident['resonance_hz'] != pytest.approx(45.8, rel=0.05):
+        # identify's known failure (README, test_ros_identify): its first stepped sine goes
+        # wrong now and then, and the fine one searches around a wrong resonance (one run of
+        # six on this slide, 2026-11-24: 178 Hz, damping 0.93). Not autotune's to judge.
+        pytest.xfail(f'identify measured a resonance of {ident["resonance_hz"]:.1f} Hz (the '
+                     'plant: 45.8 Hz): identify is not reliable yet (issue 14)')
+    assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    regs = yaml.safe_load((tmp_path / 'autotune.yaml').read_text())['controller'][
+        'ros__parameters']
+    assert regs['x.notch_n1'] != 0.0 and regs['x.notch_d2'] != 0.0, run.stdout[-3000:]
+    assert 'the resonance limits the loop' in run.stdout
+    v = yaml.safe_load((tmp_path / 'verification.yaml').read_text())
+    assert v['before']['gain_margin_db'] < 8.0 or v['before']['phase_margin_deg'] < 45.0
+    assert v['after']['gain_margin_db'] >= 8.0 and v['after']['phase_margin_deg'] >= 45.0
+    assert len(v['after']['moves']) == 3
+    for a in v['after']['moves']:
+        # every move ends (MOTION_DONE within the tool's 10 s): how soon is not must-show 2's
+        # question; on this slide the last count is crept in against 42 N of stiction (runs of
+        # 2026-11-24: 10 ms to 5.1 s)
+        assert math.isfinite(a['settle_ms']), a
+        assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
+
+
+@pytest.mark.timeout(240)
+def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env, tmp_path):
+    """The screw ten times softer (resonance 76.8 Hz) under the default 5 kg slide: the shipped
+    gains lose margin (2026-11-24: 3.7 dB / 27.0° measured), autotune finds the resonance and,
+    by its rule, no notch (the loop is bounded by the phase margin at its 32 Hz crossover, not
+    at the resonance); the proposal meets 8 dB / 45° on the measured loop and every move ends
+    at rest without ringing (11.1 dB / 45.6°, 39 / 38 / 38 ms against 665 / 669 / 660 ms,
+    output p-p 0.000 V)."""
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
+                          '--lockstep', '--apply', '-o', str(tmp_path), '--plant',
+                          'x.screw_stiffness:=1.0e6'],
+                         env=node_env, capture_output=True, text=True, timeout=230)
+    print(run.stdout[-5000:])
+    path = tmp_path / 'identify' / 'identify.yaml'
+    assert path.is_file(), f'identify failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    ident = yaml.safe_load(path.read_text())
+    if ident['resonance_hz'] != pytest.approx(76.8, rel=0.05):
+        pytest.xfail(f'identify measured a resonance of {ident["resonance_hz"]:.1f} Hz (the '
+                     'plant: 76.8 Hz): identify is not reliable yet (issue 14)')
+    assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    regs = yaml.safe_load((tmp_path / 'autotune.yaml').read_text())['controller'][
+        'ros__parameters']
+    assert regs['x.notch_n1'] == 0.0 and regs['x.notch_d2'] == 0.0, run.stdout[-3000:]
+    assert 'no notch: the resonance does not limit the loop' in run.stdout
+    v = yaml.safe_load((tmp_path / 'verification.yaml').read_text())
+    assert v['before']['gain_margin_db'] < 8.0 and v['before']['phase_margin_deg'] < 45.0
+    assert v['after']['gain_margin_db'] >= 8.0 and v['after']['phase_margin_deg'] >= 45.0
+    assert len(v['after']['moves']) == 3
+    for b, a in zip(v['before']['moves'], v['after']['moves']):
+        assert a['settle_ms'] < b['settle_ms'], (b, a)
+        assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
+        assert a['overshoot_counts'] <= 2.0, a

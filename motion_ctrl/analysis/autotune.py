@@ -20,15 +20,40 @@ the design crossover, as for a rigid body J s²:
     kd = J·ωc,   kp = kd·ωc / a,   ki = kp·ωc / (a·b)
 
 (the PID's zeros at about ωc/a and ωc/(a·b): a = 3, b = 4 puts 45–60° of phase at the
-crossover). For each shape (a, b) of a small grid and each notch candidate (none, or the
-resonance cancelled with PMAC's filter, core.notch.design with prewarp), ωc is raised by
-bisection to the largest value for which the margins meet the preset's targets and the
-crossover stays below the preset's share of the first anti-resonance (a two-mass loop should
-not cross over above about half of it). Of those, the largest ki wins (the stiffest at low
-frequency: what drives a backlash gap or a friction offset out and ends a move; on the
-simulated slide it settled the demo's moves about twice as fast as choosing the highest
-crossover or bandwidth did), then the higher bandwidth. A notch is kept only where it buys
-something (the resonance limits the loop): more than 10 % more ki than the best without.
+crossover). For each shape (a, b) of a small grid, ωc is raised by bisection to the largest
+value for which the margins meet the preset's targets and the crossover stays below the
+preset's share of the first anti-resonance (a two-mass loop should not cross over above about
+half of it). Of those, the largest ki wins (the stiffest at low frequency: what drives a
+backlash gap or a friction offset out and ends a move; on the simulated slide it settled the
+demo's moves about twice as fast as choosing the highest crossover or bandwidth did), then the
+higher bandwidth.
+
+The notch (Ixx36–39), by a rule a motion engineer would apply: a notch where the resonance
+limits the loop, and only where it pays for its phase lag.
+
+1. Without a notch, each shape stops at its largest crossover because something is missed just
+   above it. The resonance holds that shape back when what is missed is a margin at a
+   frequency at the resonance (RESONANCE_BAND: 0.75 × the anti-resonance to 1.3 × the
+   resonance): the gain margin of the resonance's peak, or the phase margin where the peak
+   crosses 0 dB. The phase margin at the crossover itself (latency, ZOH and the PID), or the
+   preset's crossover limit, are not the resonance's doing, and no notch moves them.
+2. Only the shapes the resonance holds back are tried with a notch, each with every notch of
+   a family (_notch_candidates: zeros and poles at 1, 1.05 or 1.1 × the resonance, zeros ζ
+   0.02–0.2 (depth), poles ζ 0.15–0.5 (width), core.notch.design with prewarp, at least 6 dB
+   down at the resonance).
+3. The best of them is proposed if it gives at least NOTCH_KEEP_GAIN (1.1) × the ki of the best
+   gains without a notch (the preset's objective). Where no gains meet the preset without a
+   notch, the best notch is taken; `notch=True` forces the best, `False` forbids one.
+
+What that gives on the simulated slide (test_autotune.py, in the plant's own numbers): with
+the screw ten times softer (resonance 77 Hz, anti-resonance 71 Hz), no notch, dual nor motor:
+the crossover (32 Hz dual; motor at the preset's limit, half the anti-resonance) is bounded by
+the phase margin there, not by the resonance, and a forced notch costs a third of the ki (its
+lag below its centre). With a slide four times as heavy on that screw (slide / motor 0.65,
+resonance 46 Hz, anti-resonance 36 Hz) the resonance's peak crosses 0 dB: without a notch the
+gains keep a tenth of the ki, and a notch at the resonance (ζ 0.02–0.05 / 0.15) gives 9–10 ×
+the ki. On the default slide (243 Hz) some shapes are held back by the resonance, but the best
+notch buys only 4–5 % more ki: no notch.
 
 Feedforward (on the command, outside the loop): kaff = J (the acceleration it cancels),
 kvff = kd + viscous (PMAC form: kd acts on the actual velocity, kvff = kd cancels it on a move,
@@ -36,7 +61,11 @@ plus the viscous friction), friction_ff = the Coulomb friction (Ixx68), from ide
 and friction_ff_at_rest = AT_REST_SHARE (0.75) of it: at rest, pushed by the sign of a position
 error outside the anti-hunting window, so the last counts of a move are not crept out by the
 integrator against stiction (the demo's moves on the default slide in the harness: ~30 ms
-instead of ~310 with the same gains).
+instead of ~310 with the same gains). With `feedback` motor it is 0: pushed by the motor's
+error, the motor breaks away alone inside the backlash gap (0.75 of the whole axis's friction
+is more than its own) and the axis hunts at rest (the harness, the stiff proposal: output p-p
+0.6-0.7 V at rest on the default slide and with the screw ten times softer, none of the moves
+done; 0.01-0.09 V and done without the aid).
 
 No rclpy: file input (identify's output folder) and plots are here, ROS is in tools/autotune.py.
 """
@@ -60,6 +89,14 @@ __all__ = ['Preset', 'PRESETS', 'AxisResponse', 'Evaluation', 'NotchChoice', 'Pr
 LATENCY_TICKS = 1          # encoder sample -> command over DDS (as tools/tuning, identify README)
 FEEDBACKS = ('dual', 'motor')
 NOTCH_KEEP_GAIN = 1.10     # a notch must raise ki by 10 % to be worth its phase lag
+#: the notch family (_notch_candidates): centre as a multiple of the resonance, zero damping
+#: (depth), pole damping (width)
+NOTCH_CENTRES = (1.0, 1.05, 1.1)
+NOTCH_ZERO_DAMPING = (0.02, 0.05, 0.1, 0.2)
+NOTCH_POLE_DAMPING = (0.15, 0.2, 0.3, 0.5)
+NOTCH_MIN_CUT_DB = 6.0     # a candidate is a notch of the resonance: this much down there
+#: "at the resonance": from this share of the anti-resonance to this multiple of the resonance
+RESONANCE_BAND = (0.75, 1.3)
 SHAPES = tuple((a, b) for a in (1.5, 2.0, 3.0, 4.0, 6.0) for b in (4.0, 8.0, 16.0))
 #: the search asks this much more than the preset (grids differ; the gains are rounded)
 SEARCH_PAD_DB, SEARCH_PAD_DEG = 0.2, 0.5
@@ -160,11 +197,18 @@ class AxisResponse:
         """(freq, motor, load) of the measured points coherent on both, or None."""
         if self.motor is None or self.load is None:
             return None
-        keep = (self.motor.coherence >= min_coherence) & (self.load.coherence >= min_coherence) \
-            & np.isfinite(self.motor.response) & np.isfinite(self.load.response)
-        if np.count_nonzero(keep) < 2:
+        coh = np.minimum(self.motor.coherence, self.load.coherence)
+        keep = (coh >= min_coherence) & np.isfinite(self.motor.response) \
+            & np.isfinite(self.load.response)
+        idx = np.flatnonzero(keep)
+        # by frequency; where two runs measured the same frequency (identify's coarse and fine
+        # stepped sines can meet), the more coherent point
+        idx = idx[np.lexsort((-coh[idx], self.motor.freq[idx]))]
+        f = self.motor.freq[idx]
+        idx = idx[np.concatenate([[True], np.diff(f) > 0])]
+        if idx.size < 2:
             return None
-        return self.motor.freq[keep], self.motor.response[keep], self.load.response[keep]
+        return self.motor.freq[idx], self.motor.response[idx], self.load.response[idx]
 
 
 def _loop(freq, gains, motor, load, feedback, period):
@@ -285,19 +329,27 @@ class NotchChoice:
 
 
 def _notch_candidates(axis: AxisResponse) -> list:
-    m = axis.model
-    fr = m.resonance_hz
-    zr = max(m.resonance_damping, 0.01)
+    """The notches tried: zeros and poles together at the resonance or a little above it (a
+    notch's phase lag below its centre is what it costs at the crossover; above the resonance
+    it costs less), zeros damped NOTCH_ZERO_DAMPING (depth ζz/ζp at the centre), poles
+    NOTCH_POLE_DAMPING (width). Each designed by core.notch.design with prewarp (the discrete
+    zeros at exp(sT) of the continuous ones); kept only if it is a notch of the resonance: at
+    least NOTCH_MIN_CUT_DB down at the fitted resonance frequency."""
+    fr = axis.model.resonance_hz
+    T = axis.sample_period
     out = []
-    for zz in (zr, 0.1):
-        out.append(NotchChoice(fr, zz, fr, 0.5))
+    for centre in NOTCH_CENTRES:
+        for zz in NOTCH_ZERO_DAMPING:
+            for zp in NOTCH_POLE_DAMPING:
+                out.append(NotchChoice(centre * fr, zz, centre * fr, zp))
     ok = []
-    for c in dict.fromkeys(out):
+    for c in out:
         try:
-            c.registers(axis.sample_period)
+            coeffs = tuple(c.registers(T).values())
         except ValueError:
             continue
-        ok.append(c)
+        if nt.gain_db(coeffs, fr, T) <= -NOTCH_MIN_CUT_DB:
+            ok.append(c)
     return ok
 
 
@@ -319,6 +371,9 @@ class Proposal:
     limit: str                           # what bounded the crossover
     shape: tuple
     notes: list = field(default_factory=list)
+    #: step 1 of the rule: without a notch, some PID shape stops at a margin missed at the
+    #: resonance (or no gains meet the preset at all); whether a notch then pays is step 3
+    resonance_limits: bool = False
 
     @property
     def ok(self) -> bool:
@@ -369,17 +424,50 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
                 return False, cross
         return True, cross
 
-    def best_for(nregs) -> tuple | None:
-        best = None
-        for a, b in SHAPES:
-            regs = lambda wc: _shape_gains(J, wc, a, b) | nregs   # noqa: E731
-            # The bisection needs a feasible low end. The lowest crossover is not always one:
-            # a viscous pole fitted above it (the band starts at 20 Hz, so the fit barely
-            # sees it) can keep the loop off 0 dB on the grid there.
-            lo = next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
-                       if feasible(regs(2 * math.pi * f0))[0]), None)
-            if lo is None:
+    def binding(regs) -> list:
+        """What the loop misses just above the largest feasible crossover (the bisection's
+        infeasible end): [(what, frequency [Hz])]."""
+        out = []
+        loops = [('', idf.margins(f, _loop(f, regs, gm_, gl_, feedback, T)))]
+        if meas is not None:
+            fm, m_, l_ = meas
+            loops.append((' (measured points)', idf.margins(fm, _loop(fm, regs, m_, l_,
+                                                                     feedback, T))))
+        for where, mm in loops:
+            if not mm.gain_crossovers_hz:
                 continue
+            if mm.phase_margin_deg < pm_target:
+                out.append(('phase margin' + where, mm.crossover_hz))
+            if mm.gain_margin_db < gm_target:
+                out.append(('gain margin' + where, mm.phase_crossover_hz))
+        cross = min(loops[0][1].gain_crossovers_hz or [0.0])
+        if cross > cap:
+            out.append(("the preset's crossover limit", cap))
+        return out
+
+    def per_shape(nregs, shapes, beat=0.0) -> dict:
+        """{shape: ((ki, bandwidth), registers, registers just above)}: each shape's largest
+        feasible crossover (bisection), with the registers of its infeasible end. With `beat`
+        > 0 only shapes that can give more ki: the bisection starts at the crossover that gives
+        ki = beat (ki = J·ωc³/(a²·b)), and a shape infeasible there is left out (one look
+        instead of a bisection: most notch candidates end there)."""
+        out = {}
+        for a, b in shapes:
+            regs = lambda wc: _shape_gains(J, wc, a, b) | nregs   # noqa: E731
+            if beat > 0.0:
+                need = (beat * a * a * b / J) ** (1.0 / 3.0)
+                if need >= top or not feasible(regs(need))[0]:
+                    continue
+                lo = math.log(need)
+            else:
+                # The bisection needs a feasible low end. The lowest crossover is not always
+                # one: a viscous pole fitted above it (the band starts at 20 Hz, so the fit
+                # barely sees it) can keep the loop off 0 dB on the grid there.
+                low = next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
+                            if feasible(regs(2 * math.pi * f0))[0]), None)
+                if low is None:
+                    continue
+                lo = low
             hi = math.log(top)
             for _ in range(11):
                 mid = 0.5 * (lo + hi)
@@ -389,37 +477,92 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
                     hi = mid
             r = regs(math.exp(lo))
             bw = _closed_bandwidth(f, r, gm_, gl_, feedback, T)
-            key = (r['ki'], round(bw, 1))
-            if best is None or key > best[0]:
-                best = (key, r, (a, b))
-        return best
+            out[(a, b)] = ((r['ki'], round(bw, 1)), r, regs(math.exp(hi)))
+        return out
 
-    plain = best_for({}) if notch is not True else None
+    def best(shapes: dict) -> tuple | None:
+        """(key, registers, shape) of the largest ki, then bandwidth."""
+        if not shapes:
+            return None
+        s = max(shapes, key=lambda k: shapes[k][0])
+        return shapes[s][0], shapes[s][1], s
+
+    def at_resonance(bound) -> list:
+        return [(w, fq) for w, fq in bound if fq is not None and band[0] <= fq <= band[1]
+                and 'crossover limit' not in w]
+
+    def said(bound) -> str:
+        return ', '.join(f'{w} at {fq:.1f} Hz' for w, fq in bound if fq is not None) \
+            or 'nothing on the grid'
+
+    fr, fa = axis.model.resonance_hz, axis.model.antiresonance_hz
+    band = (RESONANCE_BAND[0] * fa, RESONANCE_BAND[1] * fr)
+    plain_shapes = per_shape({}, SHAPES)
+    plain = best(plain_shapes)
+    # The rule (module docstring): a notch where the resonance limits the loop. Without a notch,
+    # a PID shape is held back by the resonance when the margin it misses just above its
+    # largest crossover is missed at the resonance (not the phase margin at its crossover, nor
+    # the preset's crossover limit: no notch moves those). Only such shapes are tried with the
+    # notches of the family, and the best is proposed if it gives NOTCH_KEEP_GAIN times the ki
+    # of the best gains without one (the preset's objective; a notch costs phase below its
+    # centre and must pay for it). Where no gains meet the preset without one, the best notch.
+    held = {s: at_resonance(binding(v[2])) for s, v in plain_shapes.items()}
+    held = {s: w for s, w in held.items() if w}
+    search = SHAPES if notch is True or plain is None else tuple(s for s in SHAPES if s in held)
     with_notch = None
-    if notch is not False:
-        for c in _notch_candidates(axis):
-            got = best_for(c.registers(T))
+    # by default only a notch that pays is of interest: the search looks for ki above
+    # NOTCH_KEEP_GAIN × the best without one, and then above the best notch so far
+    floor = NOTCH_KEEP_GAIN * plain[0][0] if notch is None and plain is not None else 0.0
+    candidates = _notch_candidates(axis)
+    if notch is not False and search:
+        for c in candidates:
+            beat = max(floor, with_notch[0][0][0] if with_notch is not None else 0.0)
+            got = best(per_shape(c.registers(T), search, beat))
             if got is not None and (with_notch is None or got[0] > with_notch[0][0]):
                 with_notch = (got, c)
-    chosen, choice = plain, None
     notes = []
-    if with_notch is not None and (notch is True or plain is None or
-                                   with_notch[0][0][0] > NOTCH_KEEP_GAIN * plain[0][0]):
-        chosen, choice = with_notch
-        if plain is not None:
-            notes.append(f'notch: ki {plain[0][0]:.4g} without, {chosen[0][0]:.4g} '
-                         f'with (resonance {axis.model.resonance_hz:.1f} Hz)')
-        elif notch is True:
-            notes.append('notch: asked for (the best one of the candidates at the resonance, '
-                         f'{axis.model.resonance_hz:.1f} Hz)')
-        else:
-            notes.append('notch: no gains meet the margins without one (resonance '
-                         f'{axis.model.resonance_hz:.1f} Hz)')
+    if plain is not None:
+        bound = binding(plain_shapes[plain[2]][2])
+        notes.append(f'without a notch: bounded by {said(bound)} (PID zeros at crossover/'
+                     f'{plain[2][0]:g}, /{plain[2][0] * plain[2][1]:g}; resonance {fr:.1f} Hz, '
+                     f'anti-resonance {fa:.1f} Hz)')
+    gain = None if with_notch is None or plain is None else with_notch[0][0][0] / plain[0][0]
+    deserved = plain is None or (with_notch is not None and with_notch[0][2] in held
+                                 and gain is not None and gain >= NOTCH_KEEP_GAIN)
+    keep = with_notch is not None and (notch is True or deserved)
+    chosen, choice = (with_notch if keep else (plain, None))     # type: ignore[misc]
+    desc, nki, pki = '', 0.0, (plain[0][0] if plain is not None else 0.0)
+    if with_notch is not None:
+        c, ws, nki = with_notch[1], with_notch[0][2], with_notch[0][0][0]
+        desc = (f'{c.f_zero:.1f} Hz, ζ {c.zeta_zero:g} / {c.zeta_pole:g}, '
+                f'{-nt.gain_db(tuple(c.registers(T).values()), fr, T):.1f} dB down at the '
+                f'resonance; PID zeros at crossover/{ws[0]:g}, /{ws[0] * ws[1]:g}')
+    if keep and plain is None:
+        notes.append(f'notch ({desc}): no gains meet the margins without one')
+    elif keep and not deserved:
+        notes.append(f'notch ({desc}): asked for (--notch on); ki {nki:.4g} with '
+                     f'it, {pki:.4g} without (the rule would not propose it)')
+    elif keep:
+        notes.append(f'notch ({desc}): ki {nki:.4g} with it, '
+                     f'{pki:.4g} without ({gain:.2f} ×); without it these gains stop '
+                     f'at {said(held[ws])}: the resonance limits the loop')
     elif notch is None and plain is not None:
-        extra = '' if with_notch is None else \
-            f' (ki {with_notch[0][0][0]:.4g} with one, {plain[0][0]:.4g} without)'
-        notes.append('no notch: the resonance does not limit the loop; a notch would not raise '
-                     f'ki by {100 * (NOTCH_KEEP_GAIN - 1):.0f} %{extra}')
+        if not held:
+            notes.append(f'no notch: the resonance does not limit the loop (none of the '
+                         f'{len(SHAPES)} PID shapes stops at a margin missed at the resonance '
+                         'without one)')
+        elif with_notch is None:
+            notes.append(f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
+                         f'resonance without one, but none of the {len(candidates)} notches of '
+                         f'the family gives them {NOTCH_KEEP_GAIN:g} × the ki without one '
+                         f'({pki:.4g}): their phase lag at the crossover costs more than their '
+                         'cut at the resonance buys')
+        else:
+            notes.append(f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
+                         f'resonance without one, but the best notch of the family ({desc}) '
+                         f'gives ki {nki:.4g}, without {pki:.4g} '
+                         f'({gain:.2f} ×, under {NOTCH_KEEP_GAIN:g} ×): its phase lag at the '
+                         'crossover costs more than its cut at the resonance buys')
     if chosen is None:
         raise ValueError(f'no gains meet {preset.name} ({preset.gain_margin_db:g} dB, '
                          f'{preset.phase_margin_deg:g}°) on this axis with feedback {feedback}'
@@ -430,20 +573,19 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
     regs |= {k: 0.0 for k in NOTCH_REGISTERS if k not in regs}
     ev = evaluate(axis, regs, feedback)
     cross = ev.crossover_hz or 0.0
-    limit = ('the preset\'s crossover limit' if cross >= 0.97 * cap else
-             'the margins' + (' (the resonance)' if choice is None and plain is not None
-                              and ev.model.phase_crossover_hz is not None and
-                              ev.model.phase_crossover_hz > 0.8 * axis.model.antiresonance_hz
-                              else ''))
+    resonance_limits = bool(held) or plain is None
+    limit = ("the preset's crossover limit" if cross >= 0.97 * cap else 'the margins')
     kd = regs['kd']
     friction = max(axis.coulomb, 0.0)
     regs = dict(kp=regs['kp'], ki=regs['ki'], kd=kd,
                 kvff=_round(kd + max(axis.viscous, 0.0)), kaff=_round(J),
                 friction_ff=_round(friction),
-                friction_ff_at_rest=_round(AT_REST_SHARE * friction)) \
+                friction_ff_at_rest=_round(AT_REST_SHARE * friction if feedback == 'dual'
+                                           else 0.0)) \
         | {k: regs[k] for k in NOTCH_REGISTERS}
     ev.registers = dict(regs)
-    return Proposal(preset, feedback, regs, choice, ev, cap, limit, shape, notes)
+    return Proposal(preset, feedback, regs, choice, ev, cap, limit, shape, notes,
+                    resonance_limits)
 
 
 # ================================================================================================
@@ -697,21 +839,23 @@ def plot_steps(path, runs: dict, *, title: str = '') -> None:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     names = list(runs)
-    n = max(len(v) for v in runs.values())
+    labels = list(dict.fromkeys(m.label for v in runs.values() for m in v))  # one panel each
+    n = len(labels)
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), sharey=True, squeeze=False)
-    for j in range(n):
+    for j, label in enumerate(labels):
         ax = axes[0][j]
         for i, name in enumerate(names):
-            if j >= len(runs[name]):
+            m = next((x for x in runs[name] if x.label == label), None)
+            if m is None:
                 continue
-            m = runs[name][j]
             keep = (m.t >= -0.1) & (m.t <= 0.8)
+            settle = f'{m.settle_ms:.0f} ms' if math.isfinite(m.settle_ms) else 'none'
             ax.plot(m.t[keep] * 1e3, m.error[keep], '-', color=f'C{i}', lw=1.1,
-                    label=f'{name}: settle {m.settle_ms:.0f} ms, final {m.final_error:+.2f}')
+                    label=f'{name}: settle {settle}, final {m.final_error:+.2f}')
             if math.isfinite(m.settle_ms):
                 ax.axvline(m.settle_ms, color=f'C{i}', ls=':', lw=1)
         ax.axhspan(-1, 1, color='g', alpha=0.1)
-        ax.set_title(runs[names[0]][j].label, fontsize=9)
+        ax.set_title(label, fontsize=9)
         ax.set_xlabel('time from the end of the profile [ms]')
         ax.set_ylim(-25, 25)
         ax.grid(True, alpha=0.3)
