@@ -158,7 +158,6 @@ class ServoLaw:
         self.integrator_held = False
         self.anti_hunting = False
         self.config = config or LawConfig.of(axis_defaults(AXIS_REGISTERS))
-        self._law: type[PidLaw] | type[IpdLaw] = PidLaw
         self.configure(self.config)
 
     def configure(self, config: LawConfig) -> None:
@@ -168,7 +167,6 @@ class ServoLaw:
         if config.mode != self.config.mode:
             self.reset()
         self.config = config
-        self._law = PidLaw if config.pid else IpdLaw
 
     def reset(self) -> None:
         """Open loop / new mode: clear the integrators and filter history."""
@@ -211,8 +209,12 @@ class ServoLaw:
         else:
             friction = 0.0
         ff = c.kvff * cmd_vel + c.kaff * cmd_acc + friction + c.bias
-        out = self._law.update(self, dt, error, raw, ff, meas, rate, cmd_vel, target_stopped,
-                               anti)
+        if c.pid:     # (each law named: compiled, a direct call)
+            out = PidLaw.update(self, dt, error, raw, ff, meas, rate, cmd_vel, target_stopped,
+                                anti)
+        else:
+            out = IpdLaw.update(self, dt, error, raw, ff, meas, rate, cmd_vel, target_stopped,
+                                anti)
         limit = c.output_limit
         self.saturated = abs(out) >= limit
         out = _clamp(out, -limit, limit)

@@ -246,8 +246,8 @@ class Settling:
         return status_word(self.step(dt, command_position, command_velocity, profile_done,
                                      actual_position, actual_velocity))
 
-    def step(self, dt, command_position, command_velocity, profile_done,
-             actual_position, actual_velocity) -> int:
+    def step(self, dt: float, command_position: float, command_velocity: float,
+             profile_done: bool, actual_position: float, actual_velocity: float) -> int:
         """``update()`` for the servo tick: positional arguments, no validation (the caller
         passes a finite dt >= 0 and finite floats), returns the word as a plain int."""
         clock = self.clock + dt
@@ -278,8 +278,8 @@ class Settling:
         self._bits = bits
         return bits
 
-    def _position_bits(self, clock, dt, command_position, actual_position,
-                       actual_velocity) -> int:
+    def _position_bits(self, clock: float, dt: float, command_position: float,
+                       actual_position: float, actual_velocity: float) -> int:
         """A position move: AT_TARGET when the command equals the target (seed 004: "equal"),
         IN_COARSE within the coarse tolerance; "After AT_TARGET, the evaluation of the settling
         criteria begins ... Whenever either criteria 1 or 2 is not satisfied, SETTLED is cleared
@@ -304,7 +304,8 @@ class Settling:
             self._held = 0.0
         return bits | _DONE if self._done else bits
 
-    def _velocity_bits(self, clock, dt, moving, profile_done, actual_velocity) -> int:
+    def _velocity_bits(self, clock: float, dt: float, moving: bool, profile_done: bool,
+                       actual_velocity: float) -> int:
         """A velocity move. To zero: "MOTION_DONE ... by a velocity move only if the target
         velocity is zero and the velocity criteria have been met for the period specified by
         the settling time" (timed from when the profile reached zero). Otherwise "continuously
@@ -328,7 +329,7 @@ class Settling:
             self._held = 0.0
         return bits | _DONE if self._done and tv == 0.0 else bits
 
-    def _timer(self, clock, dt):
+    def _timer(self, clock: float, dt: float) -> bool:
         """The timed criterion holds on this tick: advance the settling timer; True once it has
         held for the settling time (see the timing rule in the module docstring)."""
         if self.settle_start is None:
