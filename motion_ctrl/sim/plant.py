@@ -247,8 +247,7 @@ class SlidePlant:
         n, h = self._sub_n, self._sub_h
         x_m = self.x_m
         # The pitch error changes by nanometres within one step: evaluated once per step.
-        pitch = self._pitch_slope * x_m + self._pitch_amplitude * math.sin(
-            TWO_PI * x_m / self._pitch_period)
+        pitch = self.pitch_error(x_m)
         self.x_m, self.v_m, self.x_l, self.v_l = _substeps(
             n, h, x_m, self.v_m, self.x_l, self.v_l, pitch, self._force_per_volt * volts,
             self._m_visc_braked if braking else self._m_visc, self.motor_mass, self._m_coul,
