@@ -18,7 +18,7 @@ G = S_ry / S_ru, so the feedback does not bias it):
 3. a second stepped sine, denser and smaller, around the resonance the first one found (a
    slide held against its nut by friction alone lifts off it when it vibrates harder than
    friction / mass: the amplitude there is kept low, the dwell long);
-4. four stepped sines below the anti-resonance the first one found, on base motions of four
+4. six stepped sines below the anti-resonance the first two located, on base motions of six
    speeds, for the load/motor position ratio that locates the anti-resonance (the split of the
    inertia rests on it);
 5. the two-mass fit over the points of runs 1-2 whose coherence reaches 0.9, with 0, 1 or 2
@@ -58,11 +58,11 @@ FINE_BAND = (0.8, 1.1)        # the second run, around the first run's resonance
 RATIO_BAND = (0.75, 0.93)
 #: ... at these multiples of --velocity, one run each (the count-rate aliases of the encoders
 #: differ from run to run, and so does the bias their quantisation leaves: averaged)
-RATIO_VELOCITIES = (1.05, -1.5, 1.2, -0.8)
+RATIO_VELOCITIES = (1.05, -1.5, 1.2, -0.8, 1.35, -1.15)
 #: ... with an amplitude that keeps the slide's vibration to this share of friction / mass
 #: (taken as the axis' Coulomb friction over the slide's inertia: an upper bound of the slide's
 #: own), so that it stays on its nut flank
-RATIO_ACCELERATION_SHARE = 0.2
+RATIO_ACCELERATION_SHARE = 0.3
 RATIO_MAX_AMPLITUDE = 0.15    # V
 #: the loop registers lowered for the runs (the rest of the axis' registers unchanged)
 LOOP_REGISTERS = ('kp', 'ki', 'kd', 'kvff')
@@ -272,16 +272,22 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
         m2, l2 = measure(runner.run, settings, fine, fine.duration + 30.0)
         ratio_runs = []
         if args.ratio_points:
-            r_band = (max(lo, RATIO_BAND[0] * first.antiresonance_hz),
-                      RATIO_BAND[1] * first.antiresonance_hz)
+            fa = first.antiresonance_hz
+            try:        # runs 1 and 2 have a few points of the ratio already: a closer start
+                fa = idf.fit_two_mass_on_ratio(idf.merge([m1, m2]), idf.merge([l1, l2]),
+                                               band=(lo, hi), min_coherence=MIN_COHERENCE,
+                                               delay_ticks=first.delay_ticks)[1].frequency_hz
+            except ValueError:
+                pass
+            r_band = (max(lo, RATIO_BAND[0] * fa), RATIO_BAND[1] * fa)
             amp = args.ratio_amplitude or ratio_amplitude(first, fr.coulomb, r_band)
             for k in RATIO_VELOCITIES:
                 v = k * args.velocity
                 settings, sig = stepped(amp, r_band, args.ratio_points, args.ratio_dwell, v,
                                         rate)
                 log(f'identify: run {3 + len(ratio_runs)}: stepped sine {amp:.3g} V, '
-                    f'{r_band[0]:.1f}-{r_band[1]:.1f} Hz (below the anti-resonance '
-                    f'{first.antiresonance_hz:.1f} Hz), {args.ratio_points} points x '
+                    f'{r_band[0]:.1f}-{r_band[1]:.1f} Hz (below the anti-resonance, '
+                    f'{fa:.1f} Hz from runs 1-2), {args.ratio_points} points x '
                     f'{args.ratio_dwell:g} s on {v * 1e3:g} mm/s')
                 ratio_runs.append(measure(runner.run, settings, sig, sig.duration + 30.0))
     finally:
@@ -421,13 +427,13 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--fine-dwell', type=float, default=1.0,
                     help='run 2 time per frequency [s] (default 1.0)')
     ap.add_argument('--ratio-points', type=int, default=12,
-                    help='runs 3-6 (below the anti-resonance, for the load/motor ratio that '
+                    help='runs 3-8 (below the anti-resonance, for the load/motor ratio that '
                     'locates it): frequencies per run (12; 0: no such runs, the anti-resonance '
                     'from the two-mass fit alone)')
     ap.add_argument('--ratio-dwell', type=float, default=1.0,
-                    help='runs 3-6: time per frequency [s] (default 1.0)')
+                    help='runs 3-8: time per frequency [s] (default 1.0)')
     ap.add_argument('--ratio-amplitude', type=float, default=None,
-                    help='runs 3-6: amplitude [V] (default: from run 1, the slide kept on its '
+                    help='runs 3-8: amplitude [V] (default: from run 1, the slide kept on its '
                     'nut flank)')
     ap.add_argument('--soft-loop', type=float, default=16.0,
                     help='kp and kd divided by this, ki 0, during the runs (default 16; 1: the '
