@@ -878,14 +878,34 @@ def _lagging(deg):
 
 
 def plot_bode(path, motor: FrequencyResponse, load: FrequencyResponse | None,
-              fit: TwoMassFit | None, *, title: str = '', min_coherence: float = 0.9) -> None:
+              fit: TwoMassFit | None, *, title: str = '', min_coherence: float = 0.9,
+              ratio: FrequencyResponse | None = None) -> None:
     """Bode plot (magnitude, phase, coherence) of the measured responses [m/V], the fitted
-    model over them, points below `min_coherence` drawn hollow (the fit leaves them out)."""
+    model over them, points below `min_coherence` drawn hollow (the fit leaves them out); with
+    `ratio` (:func:`load_motor_ratio` of the runs that located the anti-resonance) a fourth
+    panel: |X_load / X_motor| measured and the model's."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
-                                           gridspec_kw=dict(height_ratios=[3, 2, 1]))
+    if ratio is None:
+        fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
+                                               gridspec_kw=dict(height_ratios=[3, 2, 1]))
+    else:
+        fig, (ax_m, ax_p, ax_c, ax_r) = plt.subplots(
+            4, 1, figsize=(9, 11), sharex=True, gridspec_kw=dict(height_ratios=[3, 2, 1, 2]))
+        good = ratio.coherence >= min_coherence
+        for mask, face in ((good, 'C2'), (~good, 'none')):
+            ax_r.semilogx(ratio.freq[mask], np.abs(ratio.response[mask]), 'o', ms=4, mfc=face,
+                          mec='C2', label='measured' if face != 'none' else None)
+        if fit is not None:
+            f = np.geomspace(ratio.freq.min() * 0.8, fit.resonance_hz, 400)
+            ax_r.semilogx(f, np.abs(fit.response(f, output='load') / fit.response(f)), '-',
+                          color='C2', lw=1, label='two-mass model')
+            ax_r.axvline(fit.antiresonance_hz, color='grey', ls=':', lw=0.8)
+        ax_r.set_yscale('log')
+        ax_r.set_ylabel('|X_load / X_motor|')
+        ax_r.legend(fontsize=8)
+        ax_r.grid(True, which='both', alpha=0.3)
     sets = [('motor', motor, 'C0')] + ([('load', load, 'C1')] if load is not None else [])
     for name, fr, colour in sets:
         good = fr.coherence >= min_coherence
@@ -916,7 +936,7 @@ def plot_bode(path, motor: FrequencyResponse, load: FrequencyResponse | None,
     ax_c.axhline(min_coherence, color='r', lw=0.8, ls='--')
     ax_c.set_ylabel('coherence')
     ax_c.set_ylim(0, 1.05)
-    ax_c.set_xlabel('frequency [Hz]')
+    (ax_c if ratio is None else ax_r).set_xlabel('frequency [Hz]')
     ax_c.legend(fontsize=8)
     for ax in (ax_m, ax_p, ax_c):
         ax.grid(True, which='both', alpha=0.3)

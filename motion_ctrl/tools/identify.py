@@ -352,6 +352,7 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     write_response(out / RESPONSE_FILE, motor, load)      # the measured points, for autotune
     png = out / 'bode.png'
     idf.plot_bode(png, motor, load, fit, min_coherence=MIN_COHERENCE,
+                  ratio=idf.load_motor_ratio(*ratio) if ratio_runs else None,
                   title=f'axis {args.axis}: volts -> motor and load position, loop closed '
                         f'(stepped sine on a {args.velocity * 1e3:g} mm/s base motion)')
     log(f'identify: wrote {out / "identify.yaml"}, {out / RESPONSE_FILE}, {out / "report.md"} '
