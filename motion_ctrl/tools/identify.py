@@ -270,7 +270,7 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
             f'(around {first.resonance_hz:.1f} Hz), {args.fine_points} points x '
             f'{args.fine_dwell:g} s on {-args.velocity * 1e3:g} mm/s')
         m2, l2 = measure(runner.run, settings, fine, fine.duration + 30.0)
-        ratio_runs = []
+        ratio_runs: list[tuple[idf.FrequencyResponse, idf.FrequencyResponse]] = []
         if args.ratio_points:
             fa = first.antiresonance_hz
             try:        # runs 1 and 2 have a few points of the ratio already: a closer start
