@@ -516,3 +516,27 @@ def test_the_ratio_needs_points_measured_on_both_encoders():
         idf.fit_antiresonance(motor, load, model)
     with pytest.raises(ValueError, match='same frequencies'):
         idf.load_motor_ratio(motor, idf.FrequencyResponse(f[:3], gl[:3], coh[:3], FS, 's'))
+
+
+def test_the_identify_tools_settings_for_the_ratio_runs():
+    """The tool's pieces around the ratio runs, ROS-free: the soft loop keeps kvff's viscous
+    share, the amplitude keeps the slide's predicted acceleration at the share of friction /
+    slide inertia, and run 1's fit is taken where its resonance lies inside the band."""
+    from motion_ctrl.tools import identify as tool
+    regs = registers.axis_defaults()
+    soft = tool.soft_loop(regs, 16.0)
+    assert soft == dict(kp=regs['kp'] / 16, ki=0.0, kd=regs['kd'] / 16,
+                        kvff=pytest.approx(regs['kvff'] - regs['kd'] + regs['kd'] / 16))
+    ad, bd, truth = two_mass()
+    f = np.geomspace(20.0, 400.0, 48)
+    gm, gl = _exact_response(ad, bd, f)
+    sets = [idf.FrequencyResponse(f, g, np.full(f.size, 0.99), FS, 'stepped_sine')
+            for g in (gm, gl)]
+    fit = tool.first_fit(*sets, (20.0, 400.0))
+    assert fit.resonance_hz == pytest.approx(truth['resonance'], rel=1e-3)
+    band = (0.75 * truth['antiresonance'], 0.93 * truth['antiresonance'])
+    amp = tool.ratio_amplitude(fit, 0.25, band, cap=10.0)
+    fb = np.linspace(*band, 32)
+    accel = np.max(np.abs(fit.response(fb, output='load')) * (2 * np.pi * fb) ** 2)
+    assert amp * accel == pytest.approx(tool.RATIO_ACCELERATION_SHARE * 0.25 / fit.load_inertia)
+    assert tool.ratio_amplitude(fit, 0.25, band, cap=0.01) == 0.01
