@@ -20,18 +20,8 @@ LEAD = PLANT_AXIS['lead'].default
 KT = PLANT_AXIS['torque_constant'].default
 
 
-# Known short on the default slide (README "Identifying an axis"): the inertia split rests on
-# (f_r / f_a)² − 1 = 0.163, where 1 % on the anti-resonance is 14 % on the split, and the motor
-# barely moves at the anti-resonance, so coherence is lost there. Lockstep runs here gave
-# −23 … +62 % on the inertia, 73–86 % of the band coherent, and once (CI, 2026-11-23) a
-# "resonance" of 474 Hz from a first run that went wrong. It runs, and shows XFAIL / XPASS.
-DEFAULT_SHORT = pytest.mark.xfail(strict=False, reason='identify on the default slide is not yet '
-                                  'reliable (issue 14; README, Identifying an axis)')
-
-
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize('plant', [pytest.param({}, marks=DEFAULT_SHORT),
-                                   {'screw_stiffness': 5.0e6, 'slide_mass': 10.0}],
+@pytest.mark.parametrize('plant', [{}, {'screw_stiffness': 5.0e6, 'slide_mass': 10.0}],
                          ids=['default', 'soft-heavy'])
 def test_identify_finds_the_plant(node_env, tmp_path, plant):
     truth = SlidePlant(**plant)
@@ -46,6 +36,10 @@ def test_identify_finds_the_plant(node_env, tmp_path, plant):
         + run.stderr[-3000:]
     r = yaml.safe_load((tmp_path / 'identify.yaml').read_text())
     print(run.stdout[-2500:])
+    print(f'resonance {r["resonance_hz"] / truth.resonance_hz - 1:+.2%}, motor inertia '
+          f'{r["motor_inertia_kg_m2"] / truth.params["motor_inertia"] - 1:+.2%}, amplifier gain '
+          f'{r["amplifier_gain"] / truth.params["amplifier_gain"] - 1:+.2%}, coherent '
+          f'{r["coherent_fraction"]:.0%}')
     assert (tmp_path / 'bode.png').stat().st_size > 10_000
     assert r['resonance_hz'] == pytest.approx(truth.resonance_hz, rel=0.05)
     # The fit uses only points with coherence >= 0.9 (motor or load): at least 40 of them.
@@ -58,4 +52,8 @@ def test_identify_finds_the_plant(node_env, tmp_path, plant):
     gain = r['amplifier_gain'] / truth.params['amplifier_gain'] - 1.0
     # Those coherent points must cover most of the band (75 % of the frequencies measured).
     assert r['coherent_fraction'] >= 0.75
+    # The split of the inertia rests on the anti-resonance the load/motor ratio located (runs
+    # 3-8, below it): on the default slide (f_r / f_a)² − 1 = 0.163, so 1 % on f_a would be
+    # 14 % on the split.
+    assert r['antiresonance_from'] == 'load/motor ratio' and r['ratio_points'] >= 36
     assert abs(inertia) <= 0.10 and abs(gain) <= 0.10, (inertia, gain)

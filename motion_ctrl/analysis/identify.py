@@ -65,6 +65,7 @@ from motion_ctrl.core.notch import Biquad
 __all__ = [
     'FrequencyResponse', 'frequency_response', 'stepped_sine_response',
     'TwoMassModel', 'TwoMassFit', 'fit_two_mass',
+    'AntiResonance', 'load_motor_ratio', 'fit_antiresonance', 'fit_two_mass_on_ratio',
     'Margins', 'margins', 'pid_response', 'pid_open_loop',
     'GAIN_MARGIN_DB', 'PHASE_MARGIN_DEG',
     'merge', 'Friction', 'friction', 'physical_units', 'plot_bode', 'doubts',
@@ -76,6 +77,8 @@ GAIN_MARGIN_DB = 8.0
 PHASE_MARGIN_DEG = 45.0
 
 TWO_PI = 2.0 * math.pi
+#: fit_two_mass with the anti-resonance held: the motor's points this close to it are left out
+HELD_DIP = 0.05
 #: stepped_sine_response: DFT bins each side of a sine's own that give the noise around it
 NOISE_BINS = 4
 
@@ -380,7 +383,7 @@ def _initial_guess(f, g):
 
 def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None, *,
                  band=None, min_coherence=0.9, delay_ticks=0, sampled=True,
-                 force_per_volt=None, log_weight=True) -> TwoMassFit:
+                 force_per_volt=None, log_weight=True, antiresonance=None) -> TwoMassFit:
     """Fit the two-mass model to a measured volts → motor position response (and, if given,
     the volts → load position one, jointly: shared K, σ, resonance).
 
@@ -395,14 +398,26 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
     The viscous friction shows only as phase lead near its pole σ (a fraction of a hertz on the
     default slide): the band must reach down to a few times σ/2π for it to mean anything; the
     inertias and the resonances do not need that.
+
+    `antiresonance` (frequency [Hz], damping), when given, is held instead of fitted: the
+    anti-resonance located by :func:`fit_antiresonance` from the load/motor ratio, where the
+    motor's own response has its dip and measures it worst; the motor's points within
+    ``HELD_DIP`` (5 %) of it are then left out (the motor barely moves there, and what the
+    encoder reports of it would pull the resonance).
     """
     fpv = None if force_per_volt is None else positive('force_per_volt', force_per_volt)
+    held = None
+    if antiresonance is not None:
+        held = (positive('antiresonance frequency', antiresonance[0]),
+                positive('antiresonance damping', antiresonance[1]))
     sets = [('motor', motor)] + ([('load', load)] if load is not None else [])
     data = []
     for name, fr in sets:
         if not isinstance(fr, FrequencyResponse):
             raise ValueError(f'{name} must be a FrequencyResponse')
         m = fr.select(band, min_coherence)
+        if held is not None and name == 'motor':      # the dip the ratio located
+            m &= np.abs(fr.freq / held[0] - 1.0) >= HELD_DIP
         if np.count_nonzero(m) < 8:
             raise ValueError(f'{name}: only {np.count_nonzero(m)} points in band {band} have '
                              f'coherence >= {min_coherence:g}; need at least 8 (more '
@@ -425,10 +440,18 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
     if not fr0 > fa0:
         fa0 = fr0 / 1.05
 
+    free = np.ones(6 + (load is not None), dtype=bool)
+    full = np.zeros(free.size)
+    if held is not None:                     # fa and ζa held: x has the others only
+        free[[2, 5]] = False
+        full[2], full[5] = math.log(held[0]), math.log(held[1])
+
     def unpack(x):
-        K, sig, fa, rho, zr, za = np.exp(x[:6])
+        v = full.copy()
+        v[free] = x
+        K, sig, fa, rho, zr, za = np.exp(v[:6])
         fr = fa * math.sqrt(1.0 + rho)
-        tau = math.exp(x[6]) if load is not None else 0.0
+        tau = math.exp(v[6]) if load is not None else 0.0
         return TwoMassModel(K, sig, fr, zr, fa, za, tau)
 
     def residuals(x):
@@ -449,6 +472,10 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
           math.log(1e-4), math.log(1e-4)]
     ub = [math.log(K0 * 100), math.log(TWO_PI * hi_f), math.log(nyq), math.log(1e4),
           math.log(0.95), math.log(0.95)]
+    if held is not None:
+        fa0 = held[0]
+        if not fr0 > fa0 * 1.001:
+            fr0 = fa0 * 1.05
     best = None
     for z0 in (0.01, 0.05, 0.2):
         x0 = [math.log(K0), math.log(min(max(sig0, 2e-3), TWO_PI * hi_f / 2)), math.log(fa0),
@@ -458,9 +485,13 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
             x0.append(math.log(2 * z0 / (TWO_PI * fa0)))
             lbi.append(math.log(1e-9))
             ubi.append(math.log(1.0))
-        start = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)
-        sol = optimize.least_squares(residuals, start, bounds=(lbi, ubi), x_scale=1.0,
-                                     method='trf')
+        if held is not None:
+            lbi[2], ubi[2] = full[2] - 1.0, full[2] + 1.0      # unused: fa is held
+            lbi[5], ubi[5] = full[5] - 1.0, full[5] + 1.0
+        start = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)[free]
+        sol = optimize.least_squares(residuals, start,
+                                     bounds=(np.array(lbi)[free], np.array(ubi)[free]),
+                                     x_scale=1.0, method='trf')
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
@@ -490,6 +521,119 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
                      float(np.sqrt(np.mean(mags ** 2))), float(np.sqrt(np.mean(phs ** 2))),
                      force_per_volt, physical, T, int(delay_ticks))
     return fit
+
+
+@dataclass(frozen=True)
+class AntiResonance:
+    """The anti-resonance located on the load/motor position ratio (:func:`fit_antiresonance`):
+    frequency [Hz], damping, the points it rests on, their band [Hz] and the rms residual of
+    the ratio's magnitude [dB] and phase [°]."""
+    frequency_hz: float
+    damping: float
+    points: int
+    band: tuple
+    rms_error_db: float
+    rms_error_deg: float
+
+
+def load_motor_ratio(motor: FrequencyResponse, load: FrequencyResponse) -> FrequencyResponse:
+    """X_load / X_motor per frequency, from the volts → motor and volts → load responses of the
+    same runs (the excitation and the amplifier cancel), with the lower of the two coherences."""
+    if motor.freq.shape != load.freq.shape or not np.allclose(motor.freq, load.freq):
+        raise ValueError('motor and load must be measured at the same frequencies')
+    with np.errstate(divide='ignore', invalid='ignore'):
+        r = load.response / motor.response
+    coh = np.minimum(motor.coherence, load.coherence)
+    bad = ~np.isfinite(r)
+    r = np.where(bad, np.nan, r)
+    coh = np.where(bad, 0.0, coh)
+    return FrequencyResponse(motor.freq.copy(), r, coh, motor.sample_rate, 'ratio')
+
+
+def fit_antiresonance(motor: FrequencyResponse, load: FrequencyResponse, model: TwoMassModel,
+                      *, band=None, min_coherence=0.9, sampled=True) -> AntiResonance:
+    """Locate the anti-resonance on the load/motor position ratio.
+
+    The slide on the screw's spring is X_load / X_motor = (c s + k) / (m_s s² + (c + b) s + k):
+    a clean second order whose natural frequency is the anti-resonance ωa² = k / m_s. It needs
+    neither the amplifier's gain nor the feedback (both cancel), and it is measured best BELOW
+    the anti-resonance, where both encoders move (at 0.75-0.95 ωa its magnitude is 2-10 and
+    steep: 1 % on it is ~0.1 % on ωa), while the motor's own response locates ωa by its dip,
+    where the motor hardly moves. The inertia split rests on (ωr / ωa)² − 1, which is 0.163 on
+    the default slide: 1 % on ωa is 14 % on the split.
+
+    The ratio is fitted as the sampled model gives it, `model`'s load response over its motor
+    response (zero-order hold: the motor's aliases do not cancel; resonance and viscous pole
+    held from `model`), for ωa, ζa and the screw's damping zero τ, on the points in `band`
+    below the resonance where both motor and load reach `min_coherence`; residual: log of
+    model / measured (magnitude and phase), unweighted.
+
+    The encoders' quantisation is what limits it (the motion near ωa is a fraction of a count
+    on both encoders): see the `identify` tool for how its runs keep that unbiased.
+    """
+    ratio = load_motor_ratio(motor, load)
+    m = ratio.select(band, min_coherence) & (ratio.freq < model.resonance_hz)
+    if np.count_nonzero(m) < 3:
+        raise ValueError(f'only {np.count_nonzero(m)} points of the load/motor ratio in band '
+                         f'{band} below the resonance have coherence >= {min_coherence:g} on '
+                         'motor and load; need at least 3')
+    f, g = ratio.freq[m], ratio.response[m]
+    T = 1.0 / motor.sample_rate if sampled else None
+
+    def model_at(x):
+        fa, za, tau = np.exp(x)
+        mdl = TwoMassModel(model.accel_per_volt, model.viscous_pole,
+                           max(model.resonance_hz, fa * 1.0001), model.resonance_damping,
+                           fa, za, tau)
+        return mdl.response(f, output='load', sample_period=T) \
+            / mdl.response(f, output='motor', sample_period=T)
+
+    def residuals(x):
+        e = np.log(model_at(x) / g)
+        return np.concatenate([e.real, e.imag])
+
+    # Start from the magnitude of each point: |R| ≈ 1 / |1 − (f / fa)²| below fa.
+    # (points above it, phase near −180°, do not give a guess)
+    mag = np.abs(g)
+    ok = (mag > 1.05) & (np.abs(np.angle(g)) < math.pi / 2)
+    guess = f[ok] / np.sqrt(1.0 - 1.0 / mag[ok]) if np.any(ok) else f * 1.2
+    lb = [math.log(f.min()), math.log(1e-4), math.log(1e-8)]
+    ub = [math.log(model.resonance_hz), math.log(0.5), math.log(1e-2)]
+    fa0 = float(np.clip(np.median(guess), f.min() * 1.001, model.resonance_hz * 0.999))
+    best = None
+    for z0 in (0.005, 0.02, 0.08):
+        x0 = np.clip([math.log(fa0), math.log(z0), math.log(2 * z0 / (TWO_PI * fa0))],
+                     np.array(lb) + 1e-9, np.array(ub) - 1e-9)
+        sol = optimize.least_squares(residuals, x0, bounds=(lb, ub), method='trf')
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    fa, za, _ = (float(v) for v in np.exp(best.x))
+    e = np.log(model_at(best.x) / g)
+    return AntiResonance(fa, za, int(f.size), (float(f[0]), float(f[-1])),
+                         float(np.sqrt(np.mean((e.real * 20.0 / math.log(10.0)) ** 2))),
+                         float(np.sqrt(np.mean(np.degrees(e.imag) ** 2))))
+
+
+def fit_two_mass_on_ratio(motor: FrequencyResponse, load: FrequencyResponse, *, ratio=None,
+                          band=None, ratio_band=None, min_coherence=0.9, delay_ticks=0,
+                          force_per_volt=None, iterations=2) -> tuple[TwoMassFit, AntiResonance]:
+    """The two-mass fit with its anti-resonance taken from the load/motor ratio: the joint fit
+    of `motor` and `load` (:func:`fit_two_mass`), the anti-resonance located on the ratio of
+    `ratio` = (motor, load) responses (default: the same ones) over `ratio_band` with that
+    fit's poles (:func:`fit_antiresonance`), the joint fit again with it held (gain, resonance,
+    damping and viscous pole fitted around it), `iterations` times. Returns (fit,
+    anti-resonance)."""
+    rm, rl = (motor, load) if ratio is None else ratio
+    kw = dict(band=band, min_coherence=min_coherence, delay_ticks=delay_ticks,
+              force_per_volt=force_per_volt)
+    fit = fit_two_mass(motor, load, **kw)
+    ar = None
+    for _ in range(max(1, int(iterations))):
+        ar = fit_antiresonance(rm, rl, fit.model, band=ratio_band, min_coherence=min_coherence)
+        fit = fit_two_mass(motor, load, antiresonance=(ar.frequency_hz, ar.damping), **kw)
+    assert ar is not None
+    return fit, ar
 
 
 # ================================================================================================
@@ -734,14 +878,34 @@ def _lagging(deg):
 
 
 def plot_bode(path, motor: FrequencyResponse, load: FrequencyResponse | None,
-              fit: TwoMassFit | None, *, title: str = '', min_coherence: float = 0.9) -> None:
+              fit: TwoMassFit | None, *, title: str = '', min_coherence: float = 0.9,
+              ratio: FrequencyResponse | None = None) -> None:
     """Bode plot (magnitude, phase, coherence) of the measured responses [m/V], the fitted
-    model over them, points below `min_coherence` drawn hollow (the fit leaves them out)."""
+    model over them, points below `min_coherence` drawn hollow (the fit leaves them out); with
+    `ratio` (:func:`load_motor_ratio` of the runs that located the anti-resonance) a fourth
+    panel: |X_load / X_motor| measured and the model's."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
-                                           gridspec_kw=dict(height_ratios=[3, 2, 1]))
+    if ratio is None:
+        fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
+                                               gridspec_kw=dict(height_ratios=[3, 2, 1]))
+    else:
+        fig, (ax_m, ax_p, ax_c, ax_r) = plt.subplots(
+            4, 1, figsize=(9, 11), sharex=True, gridspec_kw=dict(height_ratios=[3, 2, 1, 2]))
+        good = ratio.coherence >= min_coherence
+        for mask, face in ((good, 'C2'), (~good, 'none')):
+            ax_r.semilogx(ratio.freq[mask], np.abs(ratio.response[mask]), 'o', ms=4, mfc=face,
+                          mec='C2', label='measured' if face != 'none' else None)
+        if fit is not None:
+            f = np.geomspace(ratio.freq.min() * 0.8, fit.resonance_hz, 400)
+            ax_r.semilogx(f, np.abs(fit.response(f, output='load') / fit.response(f)), '-',
+                          color='C2', lw=1, label='two-mass model')
+            ax_r.axvline(fit.antiresonance_hz, color='grey', ls=':', lw=0.8)
+        ax_r.set_yscale('log')
+        ax_r.set_ylabel('|X_load / X_motor|')
+        ax_r.legend(fontsize=8)
+        ax_r.grid(True, which='both', alpha=0.3)
     sets = [('motor', motor, 'C0')] + ([('load', load, 'C1')] if load is not None else [])
     for name, fr, colour in sets:
         good = fr.coherence >= min_coherence
@@ -772,7 +936,7 @@ def plot_bode(path, motor: FrequencyResponse, load: FrequencyResponse | None,
     ax_c.axhline(min_coherence, color='r', lw=0.8, ls='--')
     ax_c.set_ylabel('coherence')
     ax_c.set_ylim(0, 1.05)
-    ax_c.set_xlabel('frequency [Hz]')
+    (ax_c if ratio is None else ax_r).set_xlabel('frequency [Hz]')
     ax_c.legend(fontsize=8)
     for ax in (ax_m, ax_p, ax_c):
         ax.grid(True, which='both', alpha=0.3)

@@ -18,9 +18,19 @@ G = S_ry / S_ru, so the feedback does not bias it):
 3. a second stepped sine, denser and smaller, around the resonance the first one found (a
    slide held against its nut by friction alone lifts off it when it vibrates harder than
    friction / mass: the amplitude there is kept low, the dwell long);
-4. the two-mass fit over the points whose coherence reaches 0.9, with 0, 1 or 2 ticks of
-   delay (the best), and, from one absolute reference (--slide-mass or --force-per-volt: the
-   response alone fixes only ratios), the masses in kg and the amplifier's force per volt.
+4. six stepped sines below the anti-resonance the first two located, on base motions of six
+   speeds, for the load/motor position ratio that locates the anti-resonance (the split of the
+   inertia rests on it);
+5. the two-mass fit over the points of runs 1-2 whose coherence reaches 0.9, with 0, 1 or 2
+   ticks of delay (the best), its anti-resonance held at the one the ratio gives, and, from one
+   absolute reference (--slide-mass or --force-per-volt: the response alone fixes only ratios),
+   the masses in kg and the amplifier's force per volt.
+
+During the runs kp and kd are lowered (--soft-loop) and ki is 0: the motion near the
+anti-resonance is a fraction of a count on both encoders, and a stiff loop answering each count
+moves the slide in step with the encoders' own quantisation, which biases what they report of
+such a sine by up to ±15 % (consistently for a given base speed). The registers are put back
+after.
 
 `--spawn` starts the simulated slide itself (as `calibrate`), `--lockstep` as the lockstep
 simulation, `--plant NAME:=VALUE` changes it.
@@ -44,6 +54,18 @@ EXCITATION_REGISTERS = ('excitation_signal', 'excitation_amplitude', 'excitation
                         'excitation_budget', 'excitation_velocity')
 MIN_COHERENCE = 0.9
 FINE_BAND = (0.8, 1.1)        # the second run, around the first run's resonance
+#: the ratio runs: a band below the anti-resonance run 1 found, where X_load / X_motor is 2-7
+RATIO_BAND = (0.75, 0.93)
+#: ... at these multiples of --velocity, one run each (the count-rate aliases of the encoders
+#: differ from run to run, and so does the bias their quantisation leaves: averaged)
+RATIO_VELOCITIES = (1.05, -1.5, 1.2, -0.8, 1.35, -1.15)
+#: ... with an amplitude that keeps the slide's vibration to this share of friction / mass
+#: (taken as the axis' Coulomb friction over the slide's inertia: an upper bound of the slide's
+#: own), so that it stays on its nut flank
+RATIO_ACCELERATION_SHARE = 0.3
+RATIO_MAX_AMPLITUDE = 0.15    # V
+#: the loop registers lowered for the runs (the rest of the axis' registers unchanged)
+LOOP_REGISTERS = ('kp', 'ki', 'kd', 'kvff')
 
 
 class IdentifyError(RuntimeError):
@@ -79,8 +101,14 @@ class Excitation:
         from std_srvs.srv import Trigger
         import re
         self.axis.set(settings)
+        from msg_defs.status import Status
         name = self.axis.axis
         cli = self.client.axis_services[(name, 'excite')]
+        # The base motion of the run before decelerates after its record came: at rest first.
+        if not self.client.spin_until(
+                lambda: (self.client.status[name] or 0) & Status.MOTION_DONE, 10.0):
+            raise IdentifyError(f'{name}: not at rest (MOTION_DONE) within 10 s after the run '
+                                'before')
         if not self.client.spin_until(cli.service_is_ready, 10.0):
             raise IdentifyError(f'{name}/excite is not there')
         # Not resent: a second request while the run goes would only be refused.
@@ -141,6 +169,39 @@ def best_fit(motor, load, band):
     return min(fits, key=lambda x: x[:2])[2]
 
 
+def first_fit(motor, load, band):
+    """Run 1's fit, which places the later runs. A resonance outside the band, or no
+    anti-resonance below it, is no place to measure around (once, in CI, a first run "found"
+    474 Hz on a 243 Hz slide and the fine run searched there): fitted again on the lower three
+    quarters of the band, where the encoders see most, and refused if that does not hold
+    either."""
+    lo, hi = band
+    for upper in (hi, 0.75 * hi):
+        fit = best_fit(motor, load, (lo, upper))
+        if lo < fit.resonance_hz < upper and fit.inertia_ratio >= idf.MIN_INERTIA_RATIO:
+            return fit
+    raise IdentifyError(f'run 1 gives no resonance with an anti-resonance below it inside '
+                        f'{lo:g}-{hi:g} Hz (fit: {fit.resonance_hz:.1f} Hz, slide/motor '
+                        f'{fit.inertia_ratio:.3g}); a wider --band or a larger --amplitude')
+
+
+def soft_loop(regs: dict, divisor: float) -> dict:
+    """The loop registers for the runs: kp and kd divided by `divisor`, no integrator, kvff
+    keeping its viscous share (PMAC form: kvff = kd + viscous)."""
+    kd = regs['kd'] / divisor
+    return dict(kp=regs['kp'] / divisor, ki=0.0, kd=kd, kvff=regs['kvff'] - regs['kd'] + kd)
+
+
+def ratio_amplitude(fit, coulomb, band, cap=RATIO_MAX_AMPLITUDE):
+    """The ratio runs' amplitude [V]: the slide's acceleration the fitted model predicts over
+    `band` kept to RATIO_ACCELERATION_SHARE of Coulomb friction / slide inertia (the slide
+    lifts off its nut flank above friction / mass), at most `cap`."""
+    f = np.linspace(band[0], band[1], 32)
+    accel = float(np.max(np.abs(fit.response(f, output='load')) * (2 * math.pi * f) ** 2))
+    limit = RATIO_ACCELERATION_SHARE * abs(coulomb) / fit.load_inertia
+    return float(min(cap, limit / accel)) if accel > 0 and limit > 0 else cap
+
+
 def friction_runs(axis, client, speeds, samples, timeout=10.0, log=print):
     """Jog at each speed both ways (+v, -v: back where it started), mean output and velocity at
     constant velocity (MOTION_AT_VELOCITY) over `samples` joint_states."""
@@ -185,15 +246,22 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
                             '(half the servo rate)')
     runner = Excitation(axis)
     t0 = time.monotonic()
+    loop = axis.get(*LOOP_REGISTERS)
     try:
         fr, vels, volts = friction_runs(axis, client, (args.velocity, 2 * args.velocity),
                                         args.friction_samples, log=log)
+        if args.soft_loop != 1.0:
+            soft = soft_loop(loop, args.soft_loop)
+            log(f'identify: loop registers for the runs: kp {soft["kp"]:.4g}, ki 0, kd '
+                f'{soft["kd"]:.4g}, kvff {soft["kvff"]:.4g} (--soft-loop {args.soft_loop:g}; '
+                'put back after)')
+            axis.set(soft)
         settings, coarse = stepped(args.amplitude, (lo, hi), args.points, args.dwell,
                                    args.velocity, rate)
         log(f'identify: run 1: stepped sine {args.amplitude:g} V, {lo:g}-{hi:g} Hz, '
             f'{args.points} points x {args.dwell:g} s on {args.velocity * 1e3:g} mm/s')
         m1, l1 = measure(runner.run, settings, coarse, coarse.duration + 30.0)
-        first = best_fit(m1, l1, (lo, hi))
+        first = first_fit(m1, l1, (lo, hi))
         f_lo = max(lo, FINE_BAND[0] * first.resonance_hz)
         f_hi = min(0.95 * rate / 2, FINE_BAND[1] * first.resonance_hz)
         settings, fine = stepped(args.fine_amplitude, (f_lo, f_hi), args.fine_points,
@@ -202,10 +270,39 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
             f'(around {first.resonance_hz:.1f} Hz), {args.fine_points} points x '
             f'{args.fine_dwell:g} s on {-args.velocity * 1e3:g} mm/s')
         m2, l2 = measure(runner.run, settings, fine, fine.duration + 30.0)
+        ratio_runs: list[tuple[idf.FrequencyResponse, idf.FrequencyResponse]] = []
+        if args.ratio_points:
+            fa = first.antiresonance_hz
+            try:        # runs 1 and 2 have a few points of the ratio already: a closer start
+                fa = idf.fit_two_mass_on_ratio(idf.merge([m1, m2]), idf.merge([l1, l2]),
+                                               band=(lo, hi), min_coherence=MIN_COHERENCE,
+                                               delay_ticks=first.delay_ticks)[1].frequency_hz
+            except ValueError:
+                pass
+            r_band = (max(lo, RATIO_BAND[0] * fa), RATIO_BAND[1] * fa)
+            amp = args.ratio_amplitude or ratio_amplitude(first, fr.coulomb, r_band)
+            for k in RATIO_VELOCITIES:
+                v = k * args.velocity
+                settings, sig = stepped(amp, r_band, args.ratio_points, args.ratio_dwell, v,
+                                        rate)
+                log(f'identify: run {3 + len(ratio_runs)}: stepped sine {amp:.3g} V, '
+                    f'{r_band[0]:.1f}-{r_band[1]:.1f} Hz (below the anti-resonance, '
+                    f'{fa:.1f} Hz from runs 1-2), {args.ratio_points} points x '
+                    f'{args.ratio_dwell:g} s on {v * 1e3:g} mm/s')
+                ratio_runs.append(measure(runner.run, settings, sig, sig.duration + 30.0))
     finally:
-        axis.set({k: regs[k] for k in EXCITATION_REGISTERS})
+        axis.set({k: regs[k] for k in EXCITATION_REGISTERS} | loop)
     motor, load = idf.merge([m1, m2]), idf.merge([l1, l2])
     fit = best_fit(motor, load, (lo, hi))
+    ar = None
+    if ratio_runs:
+        ratio = (idf.merge([m for m, _ in ratio_runs]), idf.merge([r for _, r in ratio_runs]))
+        try:
+            fit, ar = idf.fit_two_mass_on_ratio(motor, load, ratio=ratio, band=(lo, hi),
+                                                min_coherence=MIN_COHERENCE,
+                                                delay_ticks=fit.delay_ticks)
+        except ValueError as e:
+            raise IdentifyError(f'the load/motor ratio gives no anti-resonance: {e}') from None
     seconds = time.monotonic() - t0
     ref = {}
     if args.slide_mass is not None:
@@ -229,6 +326,10 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
         coherence_min=float(both[inband].min()),
         coherent_fraction=float(np.count_nonzero(used & inband) / np.count_nonzero(inband)),
         rms_error_db=fit.rms_error_db, rms_error_deg=fit.rms_error_deg,
+        antiresonance_from='load/motor ratio' if ar else 'two-mass fit',
+        ratio_points=ar.points if ar else 0,
+        ratio_rms_error_db=ar.rms_error_db if ar else None,
+        ratio_rms_error_deg=ar.rms_error_deg if ar else None,
         coulomb=fr.coulomb, viscous=fr.viscous, friction_offset=fr.offset,
         seconds=seconds)
     if si:
@@ -251,6 +352,7 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     write_response(out / RESPONSE_FILE, motor, load)      # the measured points, for autotune
     png = out / 'bode.png'
     idf.plot_bode(png, motor, load, fit, min_coherence=MIN_COHERENCE,
+                  ratio=idf.load_motor_ratio(*ratio) if ratio_runs else None,
                   title=f'axis {args.axis}: volts -> motor and load position, loop closed '
                         f'(stepped sine on a {args.velocity * 1e3:g} mm/s base motion)')
     log(f'identify: wrote {out / "identify.yaml"}, {out / RESPONSE_FILE}, {out / "report.md"} '
@@ -270,7 +372,9 @@ def format_report(r: dict, ref: dict) -> str:
     rows = [('resonance', f'{r["resonance_hz"]:.1f}', 'Hz',
              f'damping {r["resonance_damping"]:.3f}'),
             ('anti-resonance', f'{r["antiresonance_hz"]:.1f}', 'Hz',
-             f'damping {r["antiresonance_damping"]:.3f}'),
+             f'damping {r["antiresonance_damping"]:.3f}'
+             + (f'; load/motor ratio, {r["ratio_points"]} points'
+                if r.get('ratio_points') else '')),
             ('total inertia (kaff)', f'{r["inertia"]:.4f}', 'V·s²/m',
              f'{r["accel_per_volt"]:.3f} m/s² per V'),
             ('motor-side inertia', f'{r["motor_inertia"]:.4f}', 'V·s²/m', ''),
@@ -323,6 +427,20 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument('--fine-points', type=int, default=16, help='run 2 frequencies (16)')
     ap.add_argument('--fine-dwell', type=float, default=1.0,
                     help='run 2 time per frequency [s] (default 1.0)')
+    ap.add_argument('--ratio-points', type=int, default=12,
+                    help='runs 3-8 (below the anti-resonance, for the load/motor ratio that '
+                    'locates it): frequencies per run (12; 0: no such runs, the anti-resonance '
+                    'from the two-mass fit alone)')
+    ap.add_argument('--ratio-dwell', type=float, default=1.0,
+                    help='runs 3-8: time per frequency [s] (default 1.0)')
+    ap.add_argument('--ratio-amplitude', type=float, default=None,
+                    help='runs 3-8: amplitude [V] (default: from run 1, the slide kept on its '
+                    'nut flank)')
+    ap.add_argument('--soft-loop', type=float, default=16.0,
+                    help='kp and kd divided by this, ki 0, during the runs (default 16; 1: the '
+                    'registers as they are). The loop then barely answers the encoders\' '
+                    'single counts, which otherwise move the slide in step with their own '
+                    'quantisation and bias what the encoders report of a sub-count sine')
     ap.add_argument('--velocity', type=float, default=0.01,
                     help='base motion [m/s] (run 1 forward, run 2 back; friction jogs at it '
                     'and twice it; default 0.01)')
@@ -349,9 +467,13 @@ def main(argv=None) -> int:
     if args.lockstep and not args.spawn:
         print('identify: --lockstep needs --spawn', file=sys.stderr)
         return 2
-    bad = [n for n in ('amplitude', 'fine_amplitude', 'dwell', 'fine_dwell', 'velocity')
-           if not getattr(args, n) > 0]
+    bad = [n for n in ('amplitude', 'fine_amplitude', 'dwell', 'fine_dwell', 'velocity',
+                       'ratio_dwell', 'soft_loop') if not getattr(args, n) > 0]
+    if args.ratio_amplitude is not None and not args.ratio_amplitude > 0:
+        bad.append('ratio_amplitude')
     bad += [n for n in ('points', 'fine_points', 'friction_samples') if getattr(args, n) < 2]
+    if args.ratio_points and args.ratio_points < 3:
+        bad.append('ratio_points')
     if bad:
         print(f'identify: --{bad[0].replace("_", "-")} must be > 0 (points, samples: >= 2)',
               file=sys.stderr)
