@@ -8,6 +8,7 @@ and the median settle within the issue's 150 ms (2026-11-24: 717-731 ms before, 
 253-313 before the breakaway aid, friction_ff_at_rest; three runs after identify's ratio runs,
 the same day: 666-734 ms before, 29-35 after, 8.2-10.6 dB / 45.5-47.6° on the model)."""
 import math
+import os
 import subprocess
 import sys
 
@@ -68,7 +69,7 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
         # wrong now and then, and the fine one searches around a wrong resonance (one run of
         # six on this slide, 2026-11-24: 178 Hz, damping 0.93). Not autotune's to judge.
         pytest.xfail(f'identify measured a resonance of {ident["resonance_hz"]:.1f} Hz (the '
-                     'plant: 45.8 Hz): identify is not reliable yet (issue 14)')
+                     'plant: 45.8 Hz): its first stepped sine went wrong')
     assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
         + run.stderr[-3000:]
     regs = yaml.safe_load((tmp_path / 'autotune.yaml').read_text())['controller'][
@@ -87,6 +88,11 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
         assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
 
 
+# Opt-in (48 s): test_autotune holds the same rule on this plant without ROS, and the suite's
+# time is kept well under CI's 15 minutes. MOTION_CTRL_LONG=1 scripts/test test/test_ros_autotune.py
+@pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
+                    reason='opt-in, 48 s: MOTION_CTRL_LONG=1 (test_autotune checks the rule on '
+                           'this plant without ROS)')
 @pytest.mark.timeout(240)
 def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env, tmp_path):
     """The screw ten times softer (resonance 76.8 Hz) under the default 5 kg slide: the shipped
@@ -106,7 +112,7 @@ def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env,
     ident = yaml.safe_load(path.read_text())
     if ident['resonance_hz'] != pytest.approx(76.8, rel=0.05):
         pytest.xfail(f'identify measured a resonance of {ident["resonance_hz"]:.1f} Hz (the '
-                     'plant: 76.8 Hz): identify is not reliable yet (issue 14)')
+                     'plant: 76.8 Hz): its first stepped sine went wrong')
     assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
         + run.stderr[-3000:]
     regs = yaml.safe_load((tmp_path / 'autotune.yaml').read_text())['controller'][
