@@ -305,7 +305,11 @@ def test_a_loop_killed_inside_its_transport_holds_up_nothing(bus_slide):
     print(f'stopped in {stopped_in or "no listener"}; longest gap in the plant\'s stream '
           f'{gap * 1e3:.1f} ms')
     assert gap < 0.1, (gap, stopped_in, slide.log('plant')[-2000:])
-    assert 'held up' not in slide.log('plant')
+    # The plant's own report of a late cycle, from the kill on (one while the nodes start, on
+    # two shared cores, is not this test's question: a CI run saw 23 ms before the first move).
+    held = [line for line in slide.log('plant').splitlines() if 'held up' in line
+            and float(re.search(r'\] \[(\d+\.\d+)\]', line).group(1)) > t_kill]
+    assert not held, held
 
 
 def _wait_gone(pid: int, timeout: float = 10.0) -> None:
