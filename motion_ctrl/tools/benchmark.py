@@ -236,9 +236,12 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
         if len(diags) < 2:
             return {'error': 'nodes did not come up'}
         diags.clear()
-        cpu0, t0 = _cpu_seconds(controller.proc.pid), time.monotonic()
+        # The controller's CPU: its loop process and, on the servo bus (ros.servo_bus), the
+        # bridge that started it, together.
+        pids = {controller.proc.pid, controller.servo_pid()}
+        cpu0, t0 = sum(_cpu_seconds(p) for p in pids), time.monotonic()
         spin(seconds)
-        cpu1, t1 = _cpu_seconds(controller.proc.pid), time.monotonic()
+        cpu1, t1 = sum(_cpu_seconds(p) for p in pids), time.monotonic()
         loops = list(diags)
         node.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
         spin(1.0)                                         # discovery of the new reader
