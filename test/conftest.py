@@ -33,9 +33,10 @@ def _compiled_stale() -> list[str]:
     return stale
 
 
-if _compiled_stale():
+_STALE = _compiled_stale()
+if _STALE:
     # (scripts/test bootstraps first; this is for a bare `pytest` after an edit)
-    print(f'conftest: {", ".join(_compiled_stale())} changed since compiled: scripts/bootstrap',
+    print(f'conftest: {", ".join(_STALE)} changed since compiled: scripts/bootstrap',
           file=sys.stderr)
     import subprocess
     subprocess.run([os.path.join(REPO_ROOT, 'scripts', 'bootstrap')], check=True)

@@ -264,7 +264,7 @@ class Biquad:
         self._a1 = float(d1)
         self._a2 = float(d2)
         # All-zero registers: y = x (the history still runs, so a notch set later starts
-        # from it); the servo law then need not peek at the output.
+        # from it), and peek need not compute it.
         self.passes = not (n1 or n2 or d1 or d2)
 
     @property
@@ -286,6 +286,8 @@ class Biquad:
     def peek(self, x):
         """What `step(x)` would return, without advancing the filter (the servo law tests this
         tick's output for saturation before it commits the integration)."""
+        if self.passes:
+            return x
         return self._g * x + self._b1 * self._x1 + self._b2 * self._x2 \
             - self._a1 * self._y1 - self._a2 * self._y2
 

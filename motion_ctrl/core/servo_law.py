@@ -59,8 +59,9 @@ def _clamp(v: float, lo: float, hi: float) -> float:
 
 
 def _finish(c: LawConfig, v: float, raw_error: float, target_stopped: bool) -> float:
-    """The output deadband (with ratioing) on the notch output (the callers skip it when
-    output_deadband is 0)."""
+    """The output deadband (with ratioing) on the notch output, when one is set."""
+    if c.output_deadband == 0.0:
+        return v
     return db.apply_deadband(v, c.output_deadband, raw_error, c.deadband_tolerance,
                              target_stopped, c.position_mode)
 
@@ -94,21 +95,13 @@ class PidLaw:
         limit = c.output_limit
         notch = law.notch
         # No integration while the output saturates (PMAC Ixx69): test this tick's output
-        # with the integration before committing it (when there is one to test; a notch
-        # that passes its input through needs no peek).
+        # with the integration before committing it (when there is one to test).
         if i_new != i_old:
-            test = loop + i_new + ff
-            if not notch.passes:
-                test = notch.peek(test)
-            if c.output_deadband:
-                test = _finish(c, test, raw, stopped)
-            if abs(test) >= limit:
+            if abs(_finish(c, notch.peek(loop + i_new + ff), raw, stopped)) >= limit:
                 i_new = i_old
                 held = True
         law.integral = i_new
-        out = notch.step(loop + i_new + ff)
-        if c.output_deadband:
-            out = _finish(c, out, raw, stopped)
+        out = _finish(c, notch.step(loop + i_new + ff), raw, stopped)
         law.integrator_held = held or abs(out) >= limit
         return out
 
@@ -138,8 +131,7 @@ class IpdLaw:
         co_clamped = _clamp(co, -room - ff, room - ff)
         law.co = law.integral = co_clamped
         law.integrator_held = held or co_clamped != co
-        out = law.notch.step(law.co + ff)
-        return _finish(c, out, raw, stopped) if c.output_deadband else out
+        return _finish(c, law.notch.step(law.co + ff), raw, stopped)
 
 
 class ServoLaw:

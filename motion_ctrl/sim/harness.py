@@ -47,7 +47,6 @@ class Harness:
                               sim_time=True)
         self.plants = {a: SlidePlant(**(plant or {})) for a in axes}
         self.axis, self.plant = self.axes[axes[0]], self.plants[axes[0]]
-        self.latency = latency_ticks
         self.delay = {a: deque([0.0] * latency_ticks) for a in axes}
         self.trace = Trace() if record else None
         self.ticks = 0
@@ -71,8 +70,8 @@ class Harness:
                 outputs[a] = volts
         for a, plant in self.plants.items():
             volts = outputs.get(a, 0.0)
-            if self.latency:
-                delay = self.delay[a]
+            delay = self.delay[a]
+            if delay:                                   # latency_ticks > 0
                 delay.append(volts)
                 volts = delay.popleft()
             plant.step(volts, self.T)
