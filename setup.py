@@ -52,7 +52,8 @@ COMPILED = [
     'motion_ctrl/core/dual_loop.py', 'motion_ctrl/core/soft_limits.py',
     'motion_ctrl/core/gather.py', 'motion_ctrl/core/commands.py', 'motion_ctrl/core/axis.py',
     'motion_ctrl/core/coordination.py', 'motion_ctrl/core/diagnostics.py',
-    'motion_ctrl/core/servo_loop.py', 'motion_ctrl/sim/plant.py', 'motion_ctrl/sim/harness.py',
+    'motion_ctrl/core/servo_loop.py', 'motion_ctrl/core/hardware.py', 'motion_ctrl/sim/plant.py',
+    'motion_ctrl/sim/hardware.py', 'motion_ctrl/sim/harness.py',
 ]
 BUILDS = {'build', 'build_ext', 'bdist_wheel', 'install', 'develop'}
 

@@ -95,6 +95,7 @@ class Axis(AxisCommands):
         self.command_epoch = 0       # advanced by STOP, ESTOP, ABORT, disable and faults
         self.cancelled_by = ''       # ... and what advanced it last
         self.fault_reason = ''       # why the last fault latched, for the log
+        self.drive_fault_reason = ''  # the amplifier's fault, until reset (drive_fault)
         self.time = 0.0
         self.configure(axis_defaults(AXIS_REGISTERS) | (registers or {}))
 
@@ -214,16 +215,32 @@ class Axis(AxisCommands):
         if not self._faults:
             self.enabled = True
 
-    def feedback_fault(self) -> None:
+    def feedback_fault(self, reason: str = 'no new encoder sample within feedback_timeout'
+                       ) -> None:
+        """Encoder data stale or the link to the drive lost: the loop opens (FEEDBACK_FAULT)
+        until reset."""
         if self.enabled or not self._faults & _FEEDBACK_FAULT:
             was_enabled = self.enabled
             self._open_loop()
             self._faults |= _FEEDBACK_FAULT
-            self.fault_reason = 'FEEDBACK_FAULT: no new encoder sample within feedback_timeout'
+            self.fault_reason = f'FEEDBACK_FAULT: {reason}'
             self._cancel('FEEDBACK_FAULT')
             if was_enabled:
                 self.settling.abort()    # the fault action: whatever moved is abandoned
             self._recompose()
+
+    def drive_fault(self, reason: str) -> None:
+        """The amplifier (drive) reports a fault: RMP's amplifier-fault action, an ABORT (loop
+        open at once, output 0, ABORTED + MOTION_DONE), and enable and motion are refused with
+        the reason until reset."""
+        if self.drive_fault_reason:
+            return
+        self.drive_fault_reason = reason
+        self.fault_reason = f'amplifier fault: {reason}'
+        self._open_loop()
+        self._cancel('amplifier fault')
+        self.settling.abort()
+        self._recompose()
 
     # -- the servo tick -------------------------------------------------------------------------
     def update(self, dt: float, motor_counts, load_counts, sample_dt: float | None = None,

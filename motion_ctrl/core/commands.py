@@ -18,6 +18,8 @@ Motion commands and the status word (RMP semantics, see motion_ctrl.core.settlin
 * `enable(False)` opens the loop (output 0, MOTION_DONE: nothing is being moved); `enable(True)`
   closes it at the present position; `reset()` clears FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT and
   LIMIT, and on an open loop ABORTED; the loop stays open until `enable(True)`.
+* An amplifier fault (`Axis.drive_fault`, from the hardware) aborts the axis and refuses
+  enable and motion with the drive's reason until `reset()`.
 
 Soft limits (soft_limit_min / soft_limit_max, on the commanded position in the user's frame):
 
@@ -87,6 +89,7 @@ class AxisCommands:
     load_pos: float
     command_epoch: int
     cancelled_by: str
+    drive_fault_reason: str
     _faults: int
     _sticky: int
     _stopping: int
@@ -122,6 +125,9 @@ class AxisCommands:
     def _refuse_unless_ready(self):
         if self._faults:
             return f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset'
+        if self.drive_fault_reason:
+            return (f'{self.name}: amplifier fault ({self.drive_fault_reason}), call '
+                    f'{self.name}/reset')
         if not self.enabled:
             return f'{self.name}: not enabled'
         return None
@@ -364,6 +370,9 @@ class AxisCommands:
             return True, ''
         if self._faults:
             return False, f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset first'
+        if self.drive_fault_reason:
+            return False, (f'{self.name}: amplifier fault ({self.drive_fault_reason}), call '
+                           f'{self.name}/reset first')
         if not self.homed:
             return False, f'{self.name}: no encoder feedback yet'
         if not self.enabled:
@@ -372,12 +381,13 @@ class AxisCommands:
         return True, ''
 
     def reset(self):
-        """Clear faults (fatal following error, feedback fault) and LIMIT; on an open loop also
-        ABORTED / STOPPED / ESTOPPED. The loop stays open (enable closes it); a closed loop and
-        its motion are not touched. A feedback fault whose cause persists comes back at the
-        next tick."""
+        """Clear faults (fatal following error, feedback fault, amplifier fault) and LIMIT; on an
+        open loop also ABORTED / STOPPED / ESTOPPED. The loop stays open (enable closes it); a
+        closed loop and its motion are not touched. A fault whose cause persists comes back at
+        the next tick."""
         self._faults = 0
         self._sticky = 0
+        self.drive_fault_reason = ''
         if not self.enabled:
             self.settling.idle()
         self._recompose()

@@ -98,8 +98,10 @@ def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
     for name, axis in axes.items():
         st = DiagnosticStatus(name=f'{node_name}: axis {name}', hardware_id=name)
         faults = axis.status & (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT)
-        st.level = DiagnosticStatus.ERROR if faults else DiagnosticStatus.OK
+        drive = axis.drive_fault_reason
+        st.level = DiagnosticStatus.ERROR if faults or drive else DiagnosticStatus.OK
         st.message = (f'faulted: {Status(faults)!r}' if faults else
+                      f'amplifier fault: {drive}' if drive else
                       'enabled' if axis.enabled else 'disabled')
         st.values = [KeyValue(key='mode', value=axis.r['mode']),
                      KeyValue(key='feedback', value=axis.r['feedback']),

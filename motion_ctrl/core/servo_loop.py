@@ -15,8 +15,14 @@ LinuxCNC's motion controller cycle runs it, in named stages:
  5. per axis, the sample's age (it is compared with the command of its own time) and the
     axis's own tick (`Axis.update`).
 
-No ROS here: the controller node feeds it samples, targets and register sets and publishes
-what `tick` returns; the lines it returns are for the node's log.
+`cycle` is the whole servo cycle around the tick, as PMAC's servo interrupt and ros2_control's
+read / update / write run it: the hardware interface (motion_ctrl.core.hardware) reads the
+encoders (and reports the drives' faults), the tick computes, the amplifiers follow the loops'
+enable state and the hardware writes the outputs.
+
+No ROS here: the controller node feeds it targets and register sets, drives `cycle` from its
+timer (or from its sim clock) and publishes what it returns; the lines it returns are for the
+node's log.
 """
 from __future__ import annotations
 
@@ -26,6 +32,7 @@ from motion_ctrl.core import excitation
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import LoopStats
 from motion_ctrl.core.coordination import CoordinateSystem
+from motion_ctrl.core.hardware import LINK, HardwareInterface, NoHardware
 from msg_defs.status import Status
 
 # s of encoder samples before the loop closes at start-up (real time): while DDS discovery
@@ -55,8 +62,11 @@ class Tick:
 
 class ServoLoop:
     def __init__(self, axes: dict[str, Axis], values: dict[str, dict], period: float,
-                 feedback_timeout: float, sim_time: bool = False):
+                 feedback_timeout: float, sim_time: bool = False,
+                 hardware: HardwareInterface | None = None):
         self.axes = axes
+        self.hardware: HardwareInterface = NoHardware(axes) if hardware is None else hardware
+        self._amplifier_on = {a: False for a in axes}     # what the hardware was last told
         self.values = values                  # registers applied, per axis
         self.staged: dict[str, dict] = {}     # accepted, applied at the next tick
         self.period = period
@@ -75,6 +85,7 @@ class ServoLoop:
         self._faults = {a: 0 for a in axes}
         self._diverged: dict[str, tuple | None] = {}      # the last logged, per axis
         self._age_recorded = False   # the sample age of this tick is in the statistics
+        self._log: list[tuple[str, str]] = []   # said between ticks, for the next tick's lines
 
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
@@ -86,6 +97,27 @@ class ServoLoop:
         if held is not None and held[2] - CLOCK_RESTART < stamp <= held[2]:
             return
         self.enc[axis] = (motor, load, stamp)
+
+    def fault(self, axis: str, kind: str, reason: str) -> None:
+        """The hardware reports a fault of `axis` (core.hardware): LINK opens the loop as
+        FEEDBACK_FAULT, DRIVE as an ABORT that holds until reset; logged when it latches."""
+        ax = self.axes[axis]
+        if kind == LINK:
+            if not ax.fault_bits & _FEEDBACK_FAULT:
+                opened = 'loop opened' if ax.enabled else 'the loop was open'
+                self._log.append(('error', f'{axis}: FEEDBACK_FAULT: {reason}; {opened}, call '
+                                           f'{axis}/reset'))
+            ax.feedback_fault(reason)
+        elif not ax.drive_fault_reason:
+            opened = 'loop opened (ABORTED)' if ax.enabled else 'the loop was open'
+            self._log.append(('error', f'{axis}: amplifier fault: {reason}; {opened}, call '
+                                       f'{axis}/reset'))
+            ax.drive_fault(reason)
+
+    def reset(self, axis: str):
+        """`<axis>/reset`: the drive's fault reset, then the axis's (Axis.reset)."""
+        self.hardware.reset(axis)
+        return self.axes[axis].reset()
 
     def current(self, axis: str) -> dict:
         """The axis's registers as they will be at the next tick."""
@@ -164,6 +196,28 @@ class ServoLoop:
             self.apply_staged()
         return self.coords.start(job, self.values, stamp, now)
 
+    # -- the cycle ------------------------------------------------------------------------------
+    def cycle(self, now: float) -> Tick | None:
+        """One servo cycle at time `now` [s]: read the hardware, tick, let the amplifiers follow
+        the loops, write the outputs. None when time did not advance (nothing written)."""
+        hardware = self.hardware
+        hardware.read(now, self)
+        tick = self.tick(now)
+        if tick is not None:
+            self._amplifiers()
+            hardware.write(now, tick.names, tick.outputs)
+        return tick
+
+    def _amplifiers(self) -> None:
+        """Each amplifier enabled while its axis's loop is closed (PMAC's amplifier-enable
+        output): told on a change only."""
+        told = self._amplifier_on
+        for a, axis in self.axes.items():
+            on = axis.enabled
+            if on != told[a]:
+                told[a] = on
+                self.hardware.enable(a, on)
+
     # -- the tick -------------------------------------------------------------------------------
     def tick(self, now: float) -> Tick | None:
         """One servo tick at time `now` [s]; None when time did not advance (sim time paused)."""
@@ -172,6 +226,8 @@ class ServoLoop:
         if dt <= 0.0:
             return None
         out = Tick()
+        if self._log:
+            out.log, self._log = self._log, []
         self.stats.period(dt)
         if self.staged:
             out.log += self.apply_staged()

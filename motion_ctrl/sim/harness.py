@@ -1,22 +1,21 @@
 """In-process harness: controller axis cores coupled to plant cores, stepped in lockstep.
 
-Each servo tick the controller's tick (`ServoLoop`, the same object the controller node drives,
-in its sim-time form: each encoder sample is one tick) reads the plant's encoders and computes
-the command, and the plant integrates one servo period with that command held (zero-order hold,
-like a DAC). An optional
-transport delay of whole ticks models the encoder → command path over DDS. No ROS, no clocks:
-a scenario is deterministic and runs many times faster than real time. Several axes
+Each servo tick is the controller's servo cycle (`ServoLoop.cycle`, the same object the controller
+node drives, in its sim-time form) on the `sim` hardware (motion_ctrl.sim.hardware, the same
+backend as the node's `hardware: sim`): it reads the plant's encoders, computes the command, and
+the plant integrates one servo period with that command held (zero-order hold, like a DAC). An
+optional transport delay of whole ticks models the encoder → command path over DDS. No ROS, no
+clocks: a scenario is deterministic and runs many times faster than real time. Several axes
 (`axes=('x', 'y')`: a slide each, the same registers) run on the one ServoLoop, as the node's do;
 `axis`, `plant` and the trace are the first one's.
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 from msg_defs.status import Status
 from motion_ctrl.core.axis import Axis
-from motion_ctrl.sim.plant import SlidePlant
+from motion_ctrl.sim.hardware import SimHardware
 from motion_ctrl.core.registers import CONTROLLER_GLOBAL
 from motion_ctrl.core.servo_loop import ServoLoop
 
@@ -42,12 +41,14 @@ class Harness:
                  axes=('x',)):
         self.T = servo_period
         self.axes = {a: Axis(a, registers, servo_period, record_events=True) for a in axes}
+        self.hardware = SimHardware(axes, servo_period, {a: dict(plant or {}) for a in axes},
+                                    latency_ticks=latency_ticks)
+        self.hardware.activate()
         self.loop = ServoLoop(self.axes, {a: x.r for a, x in self.axes.items()}, servo_period,
                               float(CONTROLLER_GLOBAL['feedback_timeout'].default),  # type: ignore[arg-type]
-                              sim_time=True)
-        self.plants = {a: SlidePlant(**(plant or {})) for a in axes}
+                              sim_time=True, hardware=self.hardware)
+        self.plants = self.hardware.plants
         self.axis, self.plant = self.axes[axes[0]], self.plants[axes[0]]
-        self.delay = {a: deque([0.0] * latency_ticks) for a in axes}
         self.trace = Trace() if record else None
         self.ticks = 0
         for a, x in self.axes.items():
@@ -58,23 +59,7 @@ class Harness:
         return self.ticks * self.T
 
     def tick(self, disturbance=None) -> None:
-        now = self.ticks * self.T
-        loop = self.loop
-        for a, plant in self.plants.items():
-            motor, load = plant.encoder_counts()
-            loop.feedback(a, motor, load, now)
-        tick = loop.tick(now)
-        outputs: dict[str, float] = {}
-        if tick is not None:
-            for a, volts in zip(tick.names, tick.outputs):
-                outputs[a] = volts
-        for a, plant in self.plants.items():
-            volts = outputs.get(a, 0.0)
-            delay = self.delay[a]
-            if delay:                                   # latency_ticks > 0
-                delay.append(volts)
-                volts = delay.popleft()
-            plant.step(volts, self.T)
+        tick = self.loop.cycle(self.ticks * self.T)
         self.ticks += 1
         if disturbance:
             disturbance(self)
@@ -86,7 +71,12 @@ class Harness:
             tr.actual.append(a.actual_pos)
             tr.motor.append(self.plant.x_m)
             tr.load.append(self.plant.x_l)
-            tr.output.append(outputs.get(a.name, 0.0))
+            out = 0.0
+            if tick is not None:
+                for name, volts in zip(tick.names, tick.outputs):
+                    if name == a.name:
+                        out = volts
+            tr.output.append(out)
             tr.status.append(a.word)
             tr.following_error.append(a.following_error)
 

@@ -210,6 +210,12 @@ class SlidePlant:
         self.commanded = volts
         self.command_age = 0.0
 
+    def disable(self) -> None:
+        """The amplifier disabled by its controller (it stops): from the next cycle the output
+        is 0 V and the dynamic brake closed, as after a watchdog trip, until a command comes."""
+        self.commanded = 0.0
+        self.command_age = math.inf
+
     def advance(self, dt: float, cycle: float | None = None) -> None:
         """One plant cycle of dt on the held command, through the amplifier's watchdog.
 

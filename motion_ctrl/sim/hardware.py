@@ -1,0 +1,124 @@
+"""`hardware: sim`: the backlash slide's physics (motion_ctrl.sim.plant) stepped inside the servo
+loop, one slide per axis, behind the loop's hardware interface (motion_ctrl.core.hardware).
+
+Each tick (`ServoLoop.cycle`):
+
+* `write` commands each slide's amplifier with the tick's output and integrates every slide one
+  servo period on it (the DAC's zero-order hold over the coming period); an axis the tick did not
+  command gets nothing, and its amplifier's command watchdog runs as the plant node's
+  (`SlidePlant.advance`: after `command_timeout` 0 V and the dynamic brake);
+* `read` takes the encoders of every slide, stamped with the simulation's time. In real time, a
+  tick that comes more than a quarter period late first integrates the lateness on the held
+  command (the machine does not stop while the loop is held up; counted by the watchdog as the
+  plant node counts a late cycle, at most two periods); a tick that comes early reads the slide
+  where the last write left it. In sim time every tick is exactly one period and the run is
+  deterministic.
+
+`deactivate` commands 0 V and disables every amplifier: from the next integration on its output
+is 0 V with the dynamic brake closed.
+
+An optional transport delay of whole ticks on the outputs (`latency_ticks`) models a command
+path over a network (the in-process harness uses it).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from motion_ctrl.core.hardware import FeedbackSink, HardwareError, HardwareInterface
+from motion_ctrl.sim.plant import SlidePlant
+
+# A real-time tick later than this fraction of a period integrates its lateness first.
+LATE = 0.25
+
+
+class SimHardware(HardwareInterface):
+    """One SlidePlant per axis, stepped by the servo loop."""
+
+    kind = 'sim'
+
+    def __init__(self, axes, period: float, plant: dict[str, dict] | None = None,
+                 substep_rate: float = 20000.0, latency_ticks: int = 0) -> None:
+        """`plant`: per axis, the plant registers that differ from the table's defaults."""
+        super().__init__(axes)
+        self.period: float = period
+        self.params: dict[str, dict] = {a: dict((plant or {}).get(a, {})) for a in self.axes}
+        self.substep_rate: float = substep_rate
+        self.latency_ticks: int = latency_ticks
+        self.plants: dict[str, SlidePlant] = {}
+        self._slides: list[tuple[str, SlidePlant]] = []
+        self._delay: dict[str, deque] = {}
+        self.time: float = math.nan        # the simulation's time: where the last step ended
+
+    def on_configure(self) -> None:
+        plants = {}
+        for a in self.axes:
+            try:
+                plants[a] = SlidePlant(substep_rate=self.substep_rate, **self.params[a])
+            except ValueError as e:
+                raise HardwareError(f'sim: axis {a}: {e}') from None
+        self.plants = plants
+        self._slides = list(plants.items())
+        self._delay = {a: deque([0.0] * self.latency_ticks) for a in self.axes}
+
+    def on_deactivate(self) -> None:
+        for plant in self.plants.values():
+            plant.command(0.0)
+            plant.disable()
+
+    def configure_plant(self, axis: str, changes: dict) -> None:
+        """New plant registers for one axis, at a tick boundary (validated together; raises
+        ValueError and changes nothing on a refusal)."""
+        self.plants[axis].configure(**changes)
+        self.params[axis].update(changes)
+
+    # -- the cycle ----------------------------------------------------------------------------
+    def read(self, now: float, sink: FeedbackSink) -> None:
+        t = self.time
+        if t != t or abs(now - t) < 1e-9:   # the first read; or on time (ROS stamps: whole ns)
+            t = self.time = now
+        elif now - t > LATE * self.period:
+            late = now - t
+            for _, plant in self._slides:
+                plant.advance(late, self.period)
+            t = self.time = now
+        for a, plant in self._slides:
+            motor, load = plant.encoder_counts()
+            sink.feedback(a, motor, load, t)
+
+    def write(self, now: float, names: list[str], outputs: list[float]) -> None:
+        plants = self.plants
+        if self.latency_ticks:
+            for a, volts in zip(names, outputs):
+                delay = self._delay[a]
+                delay.append(volts)
+                plants[a].command(delay.popleft())
+        else:
+            for a, volts in zip(names, outputs):
+                plants[a].command(volts)
+        T = self.period
+        for _, plant in self._slides:
+            plant.advance(T, T)
+        t = self.time
+        self.time = (now if t != t else max(t, now)) + T
+
+    # -- what the slides are doing (the ROS shell publishes it as the plant node does) ---------
+    def truth(self) -> tuple[list[float], list[float]]:
+        """Positions and velocities [m, m/s] of every slide: motor then load, axis by axis
+        (the order of plant_states: `<axis>_motor`, `<axis>_load`)."""
+        pos: list[float] = []
+        vel: list[float] = []
+        for _, p in self._slides:
+            pos.append(p.x_m)
+            pos.append(p.x_l)
+            vel.append(p.v_m)
+            vel.append(p.v_l)
+        return pos, vel
+
+    def applied(self) -> list[float]:
+        """The output each amplifier applied in the last integration [V]."""
+        return [p.volts for _, p in self._slides]
+
+    def tripped(self) -> list[bool]:
+        """Per axis: the amplifier's command watchdog held the output at 0 V."""
+        return [p.tripped for _, p in self._slides]

@@ -1,0 +1,234 @@
+"""The servo loop's hardware interface (core.hardware) and the `sim` backend (sim.hardware):
+the cycle's order, the lifecycle, faults turned into the status the axis has, the amplifiers
+following the loops, and the simulated amplifier's watchdog and dynamic brake."""
+import math
+
+import pytest
+
+from msg_defs.status import Status
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.hardware import (ACTIVE, DRIVE, INACTIVE, LINK, UNCONFIGURED,
+                                       HardwareError, HardwareInterface)
+from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
+from motion_ctrl.core.servo_loop import ServoLoop
+from motion_ctrl.sim.hardware import SimHardware
+from motion_ctrl.sim.plant import SlidePlant
+
+T = 1e-3
+
+
+class Recording(HardwareInterface):
+    """Encoders that read where the last output would put a perfect axis; every call noted."""
+
+    kind = 'recording'
+
+    def __init__(self, axes):
+        super().__init__(axes)
+        self.calls = []
+        self.faults = {}                    # axis -> (kind, reason) reported on every read
+        self.counts = {a: (0, 0) for a in self.axes}
+
+    def on_configure(self):
+        self.calls.append('configure')
+
+    def on_activate(self):
+        self.calls.append('activate')
+
+    def on_deactivate(self):
+        self.calls.append('deactivate')
+
+    def read(self, now, sink):
+        self.calls.append(('read', now))
+        for a in self.axes:
+            if a in self.faults:
+                sink.fault(a, *self.faults[a])
+            sink.feedback(a, *self.counts[a], now)
+
+    def write(self, now, names, outputs):
+        self.calls.append(('write', now, list(names)))
+
+    def enable(self, axis, on):
+        self.calls.append(('enable', axis, on))
+
+    def reset(self, axis):
+        self.calls.append(('reset', axis))
+
+
+def loop_on(hardware, axes=('x',)):
+    ax = {a: Axis(a) for a in axes}
+    return ServoLoop(ax, {a: x.r for a, x in ax.items()}, T, 0.02, sim_time=True,
+                     hardware=hardware)
+
+
+def test_a_cycle_reads_ticks_enables_and_writes_in_that_order():
+    hw = Recording(['x'])
+    hw.activate()
+    loop = loop_on(hw)
+    loop.cycle(0.0)
+    loop.cycle(T)
+    assert hw.calls == ['configure', 'activate',
+                        ('read', 0.0), ('enable', 'x', True), ('write', 0.0, ['x']),
+                        ('read', T), ('write', T, ['x'])]      # the amplifier told once
+
+
+def test_the_amplifier_follows_the_loop_abort_and_enable():
+    hw = Recording(['x'])
+    loop = loop_on(hw)
+    loop.cycle(0.0)
+    assert loop.axes['x'].abort()[0]
+    loop.cycle(T)
+    assert ('enable', 'x', False) in hw.calls
+    assert loop.axes['x'].enable(True)[0]
+    loop.cycle(2 * T)
+    assert hw.calls[-2:] == [('enable', 'x', True), ('write', 2 * T, ['x'])]
+
+
+def test_the_lifecycle_runs_in_order_and_deactivate_is_safe_twice():
+    hw = Recording(['x'])
+    assert hw.state == UNCONFIGURED
+    hw.configure()
+    assert hw.state == INACTIVE
+    with pytest.raises(HardwareError):
+        hw.configure()
+    hw.activate()
+    assert hw.state == ACTIVE
+    hw.deactivate()
+    hw.deactivate()
+    assert hw.calls == ['configure', 'activate', 'deactivate']
+    assert hw.state == INACTIVE
+
+
+def test_a_link_fault_is_a_feedback_fault_at_once_logged_once():
+    hw = Recording(['x'])
+    loop = loop_on(hw)
+    loop.cycle(0.0)
+    hw.faults['x'] = (LINK, 'heartbeat of node 1 lost')
+    lines = loop.cycle(T).log + loop.cycle(2 * T).log
+    ax = loop.axes['x']
+    assert ax.status & Status.FEEDBACK_FAULT and not ax.enabled
+    assert lines == [('error', 'x: FEEDBACK_FAULT: heartbeat of node 1 lost; loop opened, '
+                               'call x/reset')]
+    assert ('enable', 'x', False) in hw.calls
+
+
+def test_a_drive_fault_aborts_and_holds_until_reset_which_resets_the_drive():
+    hw = Recording(['x'])
+    loop = loop_on(hw)
+    loop.cycle(0.0)
+    ax = loop.axes['x']
+    assert ax.move_to(0.01)[0]
+    loop.cycle(T)
+    hw.faults['x'] = (DRIVE, 'overcurrent (603Fh = 0x2310)')
+    log = loop.cycle(2 * T).log
+    assert log == [('error', 'x: amplifier fault: overcurrent (603Fh = 0x2310); loop opened '
+                             '(ABORTED), call x/reset')]
+    assert ax.status & Status.ABORTED and ax.status & Status.MOTION_DONE
+    assert not ax.enabled and ax.output == 0.0
+    ok, reason = ax.enable(True)
+    assert not ok and reason == ('x: amplifier fault (overcurrent (603Fh = 0x2310)), call '
+                                 'x/reset first')
+    assert ax.move_to(0.0)[1] == 'x: amplifier fault (overcurrent (603Fh = 0x2310)), call x/reset'
+    # The cause persists: reset clears it, the next read brings it back.
+    loop.reset('x')
+    assert ('reset', 'x') in hw.calls
+    loop.cycle(3 * T)
+    assert ax.drive_fault_reason
+    # Cleared at the drive: reset and enable close the loop again.
+    del hw.faults['x']
+    loop.reset('x')
+    loop.cycle(4 * T)
+    assert ax.enable(True)[0]
+    loop.cycle(5 * T)
+    assert ax.enabled and not ax.status & Status.ABORTED
+
+
+# -- the sim backend -----------------------------------------------------------------------------
+def sim(axes=('x',), **plant):
+    hw = SimHardware(axes, T, {a: plant for a in axes})
+    hw.activate()
+    return hw
+
+
+def test_a_bad_plant_register_is_refused_at_configure_naming_the_axis():
+    hw = SimHardware(['x', 'y'], T, {'y': {'slide_mass': -1.0}})
+    with pytest.raises(HardwareError, match=r'^sim: axis y: slide_mass: -1 kg is out of range'):
+        hw.configure()
+    assert hw.state == UNCONFIGURED
+
+
+def test_sim_steps_one_period_per_write_like_the_plant_on_a_held_command():
+    hw = sim()
+    ref = SlidePlant()
+    seen = []
+
+    class Sink:
+        def feedback(self, a, m, l, stamp):
+            seen.append((m, l, stamp))
+
+        def fault(self, *args):
+            raise AssertionError(args)
+
+    for k in range(50):
+        hw.read(k * T, Sink())
+        hw.write(k * T, ['x'], [2.0])
+        ref.command(2.0)
+        ref.advance(T, T)
+    assert hw.plants['x'].x_m == ref.x_m and hw.plants['x'].x_l == ref.x_l
+    assert [s[2] for s in seen] == [k * T for k in range(50)]
+
+
+def test_a_late_tick_integrates_its_lateness_on_the_held_command():
+    hw = sim()
+    ref = SlidePlant()
+    sink = type('S', (), {'feedback': lambda *a: None, 'fault': lambda *a: None})()
+    hw.read(0.0, sink)
+    hw.write(0.0, ['x'], [3.0])
+    ref.command(3.0)
+    ref.advance(T, T)
+    hw.read(T + 0.004, sink)          # held up 4 ms
+    ref.advance(0.004, T)
+    assert hw.plants['x'].x_m == ref.x_m
+    assert hw.time == pytest.approx(T + 0.004)
+
+
+def test_an_axis_left_without_commands_trips_its_watchdog_and_brakes():
+    """As the plant node's amplifier: an axis the loop does not write (the tick leaves out an
+    axis whose encoder stream is not established) gets 0 V and the dynamic brake after
+    command_timeout (10 ms); a commanded one runs."""
+    hw = sim(('x', 'y'))
+    y = hw.plants['y']
+    y.command(2.0)
+    y.v_m = y.v_l = 0.05                          # moving when its commands stop
+    for k in range(100):
+        hw.write(k * T, ['x'], [0.5])
+        if k == 8:
+            assert hw.tripped() == [False, False] and hw.applied() == [0.5, 2.0]
+    assert hw.tripped() == [False, True]
+    assert hw.applied() == [0.5, 0.0]
+    assert y.v_m == 0.0                           # braked to rest
+
+
+def test_deactivate_leaves_every_amplifier_at_zero_with_the_brake_closed():
+    hw = sim()
+    loop = loop_on(hw)
+    loop.cycle(0.0)
+    assert loop.axes['x'].jog(0.05)[0]
+    for k in range(1, 200):
+        loop.cycle(k * T)
+    p = hw.plants['x']
+    assert p.v_m > 0.04
+    hw.deactivate()
+    travel0 = p.x_l
+    for _ in range(100):                          # the machine runs on, no controller
+        p.advance(T, T)
+    assert p.tripped and p.volts == 0.0 and p.v_m == 0.0
+    assert (p.x_l - travel0) < 0.002              # braked within 2 mm from 50 mm/s
+
+
+def test_the_harness_runs_the_headline_through_the_sim_backend():
+    from motion_ctrl.sim.harness import Harness
+    h = Harness()
+    assert isinstance(h.loop.hardware, SimHardware) and h.plant is h.hardware.plants['x']
+    assert h.move(2 * INCH) is not None and h.move(INCH) is not None
+    assert abs(h.load_error_counts(INCH)) <= 1.0
+    assert math.isclose(h.plant.x_l * LOAD_COUNTS_PER_M, INCH * LOAD_COUNTS_PER_M, abs_tol=1.0)
