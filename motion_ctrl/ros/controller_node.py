@@ -22,9 +22,11 @@ sim time, is one tick, and the command carries the sample's stamp. With the plan
 this makes a scenario deterministic. With `use_sim_time` and `hardware: sim` this node is the
 clock: it ticks back to back, as fast as the machine allows, publishes `/clock` and runs the
 callbacks that came (targets, services, parameters) between batches of ticks (SIM_BATCH s of
-wall time): deterministic for targets stamped ahead. Its /clock is published once a batch. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
-clock is applied at the first tick at or after that stamp (a coordinated start of several axes,
-or a move at an exact sim time); other targets apply at once. A `joint_trajectory`
+wall time): deterministic for targets stamped ahead. Its /clock is published once a batch.
+
+A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's clock is applied
+at the first tick at or after that stamp (a coordinated start of several axes, or a move at an
+exact sim time); other targets apply at once. A `joint_trajectory`
 (trajectory_msgs/JointTrajectory) is checked as a whole and run on all its axes on one time base
 (`ServoLoop.trajectory`, PMAC PVT); its header stamp schedules it the same way.
 

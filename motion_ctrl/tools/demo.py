@@ -1,7 +1,8 @@
 """The demo: the Galil manual's 1-inch move on the simulated backlash slide, over ROS.
 
-Starts the plant and the controller as two processes (params/plant.yaml, controller.yaml),
-commands a 1-inch forward move, then the headline move after a reversal (+2 in, back to +1 in),
+Starts the plant and the controller as two processes (params/plant.yaml, controller.yaml), or
+with `--hardware sim` the controller alone with the slide simulated inside its loop, commands a
+1-inch forward move, then the headline move after a reversal (+2 in, back to +1 in),
 prints the true slide error (from plant_states) in linear counts and the time to MOTION_DONE,
 and stops both nodes with SIGINT. The moves are recorded into a rosbag2 (MCAP) bag and drawn
 by the report tool next to it (out/demo-<time>/).
@@ -21,13 +22,16 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--feedback', default=None, choices=('motor', 'load', 'dual', 'sampled'),
                     help='override x.feedback (default: params/controller.yaml)')
+    ap.add_argument('--hardware', default='topics', choices=('topics', 'sim'),
+                    help='topics: plant node + controller (default); sim: the controller alone, '
+                         'the slide simulated in its loop')
     ap.add_argument('-o', '--out', default=None,
                     help='directory for logs, bag and plot (default out/demo-<time>)')
     args = ap.parse_args(argv)
     domain = ros_env.private_domain()
     import rclpy
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import start_slide
+    from motion_ctrl.ros.processes import start_sim, start_slide
     from motion_ctrl.tools.record import Recorder
     from motion_ctrl.tools.report import ReportError, format_summary, make_report
 
@@ -35,8 +39,9 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/demo-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
     bag, png = out / 'bag', out / 'move.png'
-    print(f'demo: starting plant and controller (ROS_DOMAIN_ID={domain}, logs in {out})')
-    nodes = start_slide(overrides, log_dir=out)
+    what = 'plant and controller' if args.hardware == 'topics' else 'the controller (hardware sim)'
+    print(f'demo: starting {what} (ROS_DOMAIN_ID={domain}, logs in {out})')
+    nodes = (start_slide if args.hardware == 'topics' else start_sim)(overrides, log_dir=out)
     rclpy.init()
     client = SlideClient()
     recorder = None
