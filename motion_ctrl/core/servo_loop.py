@@ -67,14 +67,17 @@ class _Channel:
         self.waited: float = 0.0
         self.faults: int = 0
         self.diverged: tuple | None = None
+        self.word: int = -1              # the status word last reported in Tick.changed
 
 
 @dataclass
 class Tick:
-    """What one tick produced: the axes that have feedback, their outputs [V], and log lines
-    as (level, text), level 'error' or 'warning'."""
+    """What one tick produced: the axes that have feedback, their outputs [V], the axes whose
+    status word changed since the last tick, and log lines as (level, text), level 'error' or
+    'warning'."""
     names: list[str] = field(default_factory=list)
     outputs: list[float] = field(default_factory=list)
+    changed: list[str] = field(default_factory=list)
     log: list[tuple[str, str]] = field(default_factory=list)
 
 
@@ -234,6 +237,10 @@ class ServoLoop:
             else:
                 volts = self._servo(ch, now, dt)
             self._report(ch, out)
+            word = axis.word
+            if word != ch.word:
+                ch.word = word
+                out.changed.append(ch.name)
             io.output = volts
             io.commanded = True
             io.enabled = axis.enabled

@@ -169,8 +169,10 @@ class ControllerNode(ros_params.RegisterNode):
         for a in self.axis_names:
             self._make_services(a)
 
-        self.last_status: dict[str, int | None] = {a: None for a in self.axis_names}
-        self.last_status_time = {a: -math.inf for a in self.axis_names}
+        # The status words: each on a change, and each again at least every STATUS_PERIOD,
+        # a few axes a tick in turn (`_refresh_status`).
+        self.status_turn = 0
+        self.status_due = 0.0
         self.stats = self.loop.stats
         self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
         # What drives the tick: a timer in real time; in sim time the plant's samples
@@ -475,16 +477,25 @@ class ControllerNode(ros_params.RegisterNode):
                                        [x.motor_vel for x in ax])
         if self.hardware_kind == 'sim':
             self.plant_states.publish(stamp_of(self.hardware.time), self.hardware)
-        for a, axis in self.axes.items():
-            g = axis.gather
-            if g is not None and g.ended is not None and a in self.run_meta:
+        for a in list(self.run_meta):
+            g = self.axes[a].gather
+            if g is not None and g.ended is not None:
                 self.gathers.put((a, g, self.run_meta.pop(a)))    # published off the tick
-            s = axis.word
-            if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
-                self.pub_status[a].send(UInt32(data=s))
-                self.last_status[a] = s
-                self.last_status_time[a] = now
+        for a in tick.changed:
+            self.pub_status[a].send(UInt32(data=self.axes[a].word))
+        self._refresh_status()
         self.stats.work(time.perf_counter() - t_start)
+
+    def _refresh_status(self) -> None:
+        """Every axis's status word again every STATUS_PERIOD (of servo time), spread over the
+        ticks: a few axes a tick, in turn, instead of all of them in one."""
+        names = self.axis_names
+        self.status_due += len(names) * self.period / STATUS_PERIOD
+        while self.status_due >= 1.0:
+            self.status_due -= 1.0
+            a = names[self.status_turn]
+            self.status_turn = (self.status_turn + 1) % len(names)
+            self.pub_status[a].send(UInt32(data=self.axes[a].word))
 
     # -- the sim clock (hardware sim, use_sim_time) ---------------------------------------------
     def _start_sim_clock(self) -> None:
