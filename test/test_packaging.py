@@ -17,7 +17,7 @@ PACKAGE = 'motion_ctrl'
 # serves each is setup.py's business, checked below to exist.
 EXPECTED_NAMES = {'controller', 'plant', 'notch', 'demo', 'scenarios', 'tune', 'benchmark',
                   'record', 'report', 'soak', 'draw', 'calibrate', 'identify', 'autotune'}
-LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time', 'axes'}
+LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time', 'axes', 'hardware'}
 
 
 def _setup_kwargs(monkeypatch, cwd, argv):

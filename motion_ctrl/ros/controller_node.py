@@ -458,13 +458,16 @@ class ControllerNode(ros_params.RegisterNode):
         now = seconds_of(stamp)
         while not self.prepared.empty():
             self._start_trajectory(*self.prepared.get_nowait())
+        if self.hardware_kind == 'topics':
+            self.hardware.stamp_tick(stamp, now)
         tick = self.loop.cycle(now)
         if tick is None:
             return                       # sim time paused or stepped back
         if tick.log:
             self._log(tick.log)
         names, outputs = tick.names, tick.outputs
-        if names:
+        if names and (self.pub_joint.wanted() or self.pub_reference.wanted()
+                      or self.pub_motor.wanted()):
             ax = [self.axes[a] for a in names]
             if self.pub_joint.wanted():
                 self.pub_joint.publish(stamp, names, [x.load_pos for x in ax],

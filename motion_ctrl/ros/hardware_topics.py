@@ -7,13 +7,16 @@ or a drive bridge of another make that speaks them), behind the loop's hardware 
   `use_sim_time` each new sample is one tick (the node's `on_sample` runs the cycle at the
   sample's stamp, as a drive synchronised to its fieldbus cycle), and a sample sent again (the
   lockstep plant resends until answered) is answered with the command already computed for it.
-* `write` publishes `command` (effort = volts) stamped with the tick's time.
+* `write` publishes `command` (effort = volts) stamped with the tick's time: the ROS stamp the
+  node gave it (`stamp_tick`), to the nanosecond, as its other streams of the tick are (seconds
+  since 1970 in a float are good to a quarter of a microsecond only).
 * `deactivate` commands 0 V on every axis and waits (bounded) for the reliable readers'
   acknowledgement, so that the message has left before the process does; the plant's amplifier
   watchdog disables the amplifiers once commands stop.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from builtin_interfaces.msg import Time
@@ -48,6 +51,8 @@ class TopicsHardware(HardwareInterface):
         self.on_sample = on_sample
         self.joints = [(self.io[a], md.motor_joint(a), md.load_joint(a)) for a in self.axes]
         self.pub_command: md.JointStateStream | None = None
+        self._stamp = None                  # the tick's ROS stamp, for `now` = _stamp_now
+        self._stamp_now = math.nan
 
     def on_configure(self) -> None:
         self.pub_command = self.node.stream(JointState, md.COMMAND)
@@ -75,6 +80,10 @@ class TopicsHardware(HardwareInterface):
         if self.on_sample is not None:
             self.on_sample(msg.header.stamp)
 
+    def stamp_tick(self, stamp, now: float) -> None:
+        """The ROS stamp (a builtin_interfaces/Time) of the tick at `now` [s]."""
+        self._stamp, self._stamp_now = stamp, now
+
     def resend(self) -> None:
         """The last command again (a lockstep plant that sent its sample twice did not get it)."""
         if self.pub_command is not None and self.pub_command.names:
@@ -87,5 +96,6 @@ class TopicsHardware(HardwareInterface):
     def write(self, now: float) -> None:
         ios = [io for io in self.io.values() if io.commanded]
         if ios and self.pub_command is not None:
-            self.pub_command.publish(stamp_of(now), [io.name for io in ios],
+            stamp = self._stamp if now == self._stamp_now else stamp_of(now)
+            self.pub_command.publish(stamp, [io.name for io in ios],
                                      effort=[io.output for io in ios])
