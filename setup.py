@@ -50,7 +50,8 @@ COMPILED = [
     'motion_ctrl/core/servo_law.py', 'motion_ctrl/core/settling.py',
     'motion_ctrl/core/profile.py', 'motion_ctrl/core/backlash.py',
     'motion_ctrl/core/dual_loop.py', 'motion_ctrl/core/soft_limits.py',
-    'motion_ctrl/core/gather.py', 'motion_ctrl/core/commands.py', 'motion_ctrl/core/axis.py',
+    'motion_ctrl/core/gather.py', 'motion_ctrl/core/hunting.py', 'motion_ctrl/core/commands.py',
+    'motion_ctrl/core/axis.py',
     'motion_ctrl/core/coordination.py', 'motion_ctrl/core/diagnostics.py',
     'motion_ctrl/core/servo_loop.py', 'motion_ctrl/sim/plant.py', 'motion_ctrl/sim/harness.py',
 ]

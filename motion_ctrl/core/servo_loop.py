@@ -240,7 +240,8 @@ class ServoLoop:
         return axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
 
     def _report(self, a: str, axis: Axis, out: Tick) -> None:
-        """Log what latched this tick: a fatal following error, a correction loop stopped."""
+        """Log what latched this tick: a fatal following error, a correction loop stopped, hunting
+        at rest."""
         faults = axis.fault_bits
         if faults & _FE_FATAL and not self._faults[a] & _FE_FATAL:
             out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call {a}/reset'))
@@ -250,6 +251,11 @@ class ServoLoop:
             out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
                                        f'from {diverged[0]} to {diverged[1]} counts'))
         self._diverged[a] = diverged
+        hunting = axis.hunting
+        if hunting.started:
+            out.log.append(('warning', f'{a}: hunting: {hunting.describe(axis.loop_counts_per_m)}'
+                                       ' (autotune sizes the anti-hunting window for the slide: '
+                                       'deadband_tolerance, fine_position_tolerance)'))
 
     def _scheduled(self, now: float, out: Tick) -> None:
         void = {a for _, a, _, epoch in self.scheduled if epoch != self.axes[a].command_epoch}
