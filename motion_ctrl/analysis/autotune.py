@@ -812,6 +812,8 @@ class MoveResult:
     error: np.ndarray
     rest: rest.Judgement
     output: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: the true slide error at the end [counts], where a simulated plant gives it (--spawn)
+    true_error: float | None = None
 
     @property
     def settled(self) -> bool:
@@ -849,13 +851,19 @@ def format_verification(runs: dict, evaluations: dict) -> str:
     """Before/after table: per move settle time, overshoot, final error, output p-p and rest
     (at rest, or why not: the limit cycle's period and amplitude); then the median settle
     time and the margins and bandwidth of each set."""
+    truth = any(m.true_error is not None for v in runs.values() for m in v)
     lines = ['| gains | move | settle [ms] | overshoot [counts] | final error [counts] | '
-             'output p-p at rest [V] | rest |', '|---|---|---:|---:|---:|---:|---|']
+             + ('slide (plant) [counts] | ' if truth else '')
+             + 'output p-p at rest [V] | rest |',
+             '|---|---|---:|---:|---:|' + ('---:|' if truth else '') + '---:|---|']
     for name, moves in runs.items():
         for m in moves:
             s = f'{m.settle_ms:.0f}' if math.isfinite(m.settle_ms) else 'no MOTION_DONE'
+            true = ('' if not truth else '- | ' if m.true_error is None
+                    else f'{m.true_error:+.2f} | ')
             lines.append(f'| {name} | {m.label} | {s} | {m.overshoot:.2f} | '
-                         f'{m.final_error:+.2f} | {m.output_pp:.3f} | {m.rest.describe()} |')
+                         f'{m.final_error:+.2f} | {true}{m.output_pp:.3f} | '
+                         f'{m.rest.describe()} |')
     lines.append('')
     lines.append('| gains | median settle [ms] | moves at rest | gain margin [dB] | '
                  'phase margin [°] | crossover [Hz] | bandwidth [Hz] |')
@@ -883,8 +891,8 @@ def plot_steps(path, runs: dict, *, title: str = '') -> None:
     labels = list(dict.fromkeys(m.label for v in runs.values() for m in v))  # one panel each
     n = len(labels)
     fig, axes = plt.subplots(3, n, figsize=(4.2 * n, 9.5), sharey='row', squeeze=False)
-    span = max(float(m.t[-1]) for v in runs.values() for m in v)
     for j, label in enumerate(labels):
+        span = max(float(m.t[-1]) for v in runs.values() for m in v if m.label == label)
         top, mid, bot = axes[0][j], axes[1][j], axes[2][j]
         for i, name in enumerate(names):
             m = next((x for x in runs[name] if x.label == label), None)
@@ -912,7 +920,7 @@ def plot_steps(path, runs: dict, *, title: str = '') -> None:
         top.legend(fontsize=7, loc='lower right')
         mid.set_ylim(-5, 5)
         mid.set_xlim(-0.1, span)
-        mid.legend(fontsize=6.5, loc='lower right')
+        mid.legend(fontsize=6.5, loc='upper right')
         bot.set_xlim(-0.1, span)
         bot.set_xlabel('time from the end of the profile [s]')
     axes[0][0].set_ylabel('slide error (joint_states) [linear counts]')

@@ -51,7 +51,8 @@ the whole rest watched, the slide's reading does not change and the output does 
 not one, moving back by more than TURN_SHARE of the Coulomb friction; a monotonic wind-down of
 the integrator is not a turn). Without MOTION_DONE the record is described as a limit cycle:
 its period (twice the mean time between reversals of the output's sign, each side held
-REVERSAL_HOLD_S, as core.hunting counts them) and its amplitude (half the slide's spread).
+REVERSAL_HOLD_S, as core.hunting counts them) and its amplitude (half the slide's spread from
+the first reversal on).
 """
 from __future__ import annotations
 
@@ -211,6 +212,7 @@ class Trial:
     ok: bool
     reason: str = ''
     settle_ms: list = field(default_factory=list)
+    failed: object = None           # the record of the move that did not rest, when kept
 
 
 def search(cands: list[Candidate], trial: Callable[[Candidate], Trial],
@@ -326,6 +328,7 @@ def judge(t, position, output, t_end, t_done, counts_per_m: float, coulomb: floa
     after = t >= start
     rev = sign_reversals(t[after], u[after])
     period = 2.0 * (rev[-1] - rev[0]) / (len(rev) - 1) if len(rev) >= 2 else float('nan')
-    spread = float(np.ptp(pos[after])) if np.any(after) else 0.0
+    cycle = t >= rev[0] if rev else after          # the cycle's spread, not the approach's
+    spread = float(np.ptp(pos[cycle])) if np.any(cycle) else 0.0
     return Judgement(False, False, spread, turns(u[after], band), period, 0.5 * spread,
                      len(rev))

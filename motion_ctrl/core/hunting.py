@@ -17,7 +17,7 @@ The count (register `hunting_reversals`: how many make it hunting; 0 = not watch
 * the count restarts with each new motion and after QUIET_S without a reversal (an axis that
   was knocked and recovered is not hunting an hour later);
 * period: twice the mean time between reversals; amplitude: half the spread of the position
-  error while watched.
+  error from the first reversal on.
 
 Plain Python, compiled with the servo tick (setup.py COMPILED): a few comparisons a tick.
 """
@@ -72,7 +72,7 @@ class Hunting:
 
     @property
     def amplitude(self) -> float:
-        """Half the spread of the position error [m] while watched."""
+        """Half the spread of the position error [m] from the first reversal on."""
         return 0.5 * (self.error_max - self.error_min) if self.reversals else 0.0
 
     def describe(self, counts_per_m: float) -> str:
@@ -123,6 +123,7 @@ class Hunting:
         if self._side:
             if not self.reversals:
                 self.first = now
+                self.error_min = self.error_max = error    # the cycle's, not the approach's
             self.reversals += 1
             self.last = now
             if not self.hunting and self.reversals >= self.limit:

@@ -143,8 +143,12 @@ class MoveRecorder:
             after = np.flatnonzero(seen_a > index)
             return t[int(after[0])] if after.size else None
         t_end, t_done = stamp(i_end), stamp(i_done)
-        return at.move_result(label, target, pos[0], t, pos, eff, t_end, t_done, counts_per_m,
-                              self.coulomb)
+        r = at.move_result(label, target, pos[0], t, pos, eff, t_end, t_done, counts_per_m,
+                           self.coulomb)
+        if client.wants_truth and client.truth_since(t[-1]):
+            # the simulated plant's own slide (--spawn), beside what the controller read
+            r.true_error = (client.truth[md.load_joint(name)] - target) * counts_per_m
+        return r
 
 
 def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, rest_s: float,
@@ -190,7 +194,7 @@ def test_moves(rec: MoveRecorder, axis, registers, counts_per_m: float):
                          rest.TEST_TIMEOUT, rest.TEST_REST, tolerate=True)
             if not r.settled:
                 return rest.Trial(c, False, f'test move to {d:+g} counts: {r.rest.describe()}',
-                                  settles)
+                                  settles, r)
             settles.append(r.settle_ms)
         return rest.Trial(c, True, '', settles)
     return trial
@@ -371,6 +375,11 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
         axis.load_file(yaml_path)
         log(f'autotune: loaded {yaml_path}; verification, proposed registers')
         runs['after'] = run_moves(rec, axis, cpm, args.move_timeout, args.rest, log)
+        if tuning.control is not None and tuning.control.failed is not None:
+            # what the gains alone (the rest as shipped) did on the slide: the test move that
+            # did not come to rest
+            runs = {'before': runs['before'], 'gains alone': [tuning.control.failed],
+                    'after': runs['after']}
     except (AutotuneError, CalibrationError) as e:
         if changed:
             log(f'autotune: {e}; putting the registers back')
@@ -379,8 +388,9 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     if args.restore:
         axis.set(saved)
         log('autotune: registers put back (--restore)')
-    table = at.format_verification(runs, {'before': tuning.before,
-                                          'after': tuning.prop.evaluation})
+    evs = {'before': tuning.before, 'gains alone': tuning.prop.evaluation,
+           'after': tuning.prop.evaluation}
+    table = at.format_verification(runs, evs)
     log(table)
     png = out / 'steps.png'
     at.plot_steps(png, runs, title=f'axis {args.axis}: the demo\'s moves, before and after '
@@ -388,7 +398,6 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     with open(out / 'report.md', 'a') as f:
         f.write('\n' + table + '\n')
     import yaml
-    evs = {'before': tuning.before, 'after': tuning.prop.evaluation}
     summary = {name: dict(
         gain_margin_db=float(evs[name].gain_margin_db),
         phase_margin_deg=float(evs[name].phase_margin_deg),
@@ -410,6 +419,12 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
                                                           allow_unicode=True))
     log(f'autotune: wrote {png}')
     result['runs'] = runs
+    unsettled = [m.label for m in runs['after'] if not m.settled]
+    result['at_rest'] = not unsettled
+    if unsettled and not args.restore:
+        axis.set(saved)
+        log(f'autotune: the proposal did not bring every move to rest ({", ".join(unsettled)}):'
+            ' registers put back')
     return result
 
 
@@ -421,7 +436,8 @@ def move_summary(m: at.MoveResult) -> dict:
                 rest=j.describe(), moved_counts=float(j.moved), output_turns=int(j.output_turns),
                 limit_cycle_period_s=None if j.done or not math.isfinite(j.period)
                 else float(j.period),
-                limit_cycle_amplitude_counts=None if j.done else float(j.amplitude))
+                limit_cycle_amplitude_counts=None if j.done else float(j.amplitude),
+                true_final_error_counts=None if m.true_error is None else float(m.true_error))
 
 
 def _read(source) -> at.AxisResponse:
@@ -496,13 +512,13 @@ def main(argv=None) -> int:
             print('autotune: --current is for offline use (the controller\'s registers are '
                   'read when it is there)', file=sys.stderr)
             return 2
-        with axis_session(args, 'autotune', services=args.source is None) as (client, axis,
-                                                                             out):
+        with axis_session(args, 'autotune', services=args.source is None,
+                          truth=args.spawn) as (client, axis, out):
             result = autotune_ros(client, axis, args, out)
     except (AutotuneError, CalibrationError) as e:
         print(f'autotune: {e}', file=sys.stderr)
         return 1
-    return 0 if result['proposal'].ok else 1
+    return 0 if result['proposal'].ok and result.get('at_rest', True) else 1
 
 
 if __name__ == '__main__':
