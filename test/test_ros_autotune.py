@@ -148,9 +148,10 @@ LONG = pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
 def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
     """`autotune --spawn --lockstep --apply` on a sticky slide. identify's creeps measure the
     breakaway, and the rest rule predicts the slip and proposes ±1 count; today's autotune
-    (the gains with the rest as shipped, tried for the record) leaves a test move in a
-    stick-slip limit cycle, reported with its period and amplitude, and the controller reports
-    the hunting of the shipped gains in its log; after the proposal every verification move
+    (the gains with the rest as shipped, tried for the record on every test move) leaves some
+    of them unsettled; where the shipped gains hunt (a stick-slip limit cycle, reported with
+    its period and amplitude), the controller reports it in its log; after the proposal every
+    verification move
     reaches MOTION_DONE, the median within 300 ms of the end of the profile, the simulated
     slide within 1 count of the target, and stays: 2 s with neither the reading nor the output
     turning back."""
@@ -168,8 +169,14 @@ def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
     r = v['rest']
     assert 1.0 < r['slip_counts'] < 2.0 and r['window_counts'] == 1.0, r
     assert r['promise'].startswith('±1 count of a target on a whole count'), r
-    assert not r['control']['at_rest'] and 'limit cycle: period' in r['control']['reason'], r
-    assert 'hunting: ' in (tmp_path / 'controller.log').read_text()
+    # the gains alone, the rest as shipped (today's autotune): a test move or more not at rest
+    assert not r['control']['at_rest'] and r['control']['unsettled'] >= 1, r
+    before = v['before']['moves'][0]
+    if not before['at_rest']:
+        # the shipped gains hunt (on this slide, always in the harness): the verification
+        # says with what period and amplitude, and the controller has said so in its log
+        assert before['limit_cycle_period_s'] > 0.5, before
+        assert 'x: hunting: ' in (tmp_path / 'controller.log').read_text()
     after = v['after']['moves']
     assert len(after) == 3
     for m in after:

@@ -79,8 +79,9 @@ TURN_SHARE = 0.05
 REVERSAL_HOLD_S = 0.01
 REVERSAL_BAND_V = 1e-3
 #: the test moves of a trial [counts of the slide's encoder from 0]: both ways, long and short,
-#: on whole counts and between them
-TEST_MOVES = (200, -200.5, 40, -40.5, 7, -7, 1000, -1000.3)
+#: on whole counts and between them, then steps of a few counts from rest (each a breakaway)
+TEST_MOVES = (200, -200.5, 40, -40.5, 7, -7, 1000, -1000.3,
+              -997, -1000, -995, -994, -998, -996, -998.5, -992)
 TEST_TIMEOUT = 2.0          # s from a test move's command to MOTION_DONE, else it fails
 TEST_REST = 0.5             # s watched at rest after a test move's MOTION_DONE
 #: what the rule sets (and the verification puts back on failure)
@@ -213,6 +214,8 @@ class Trial:
     reason: str = ''
     settle_ms: list = field(default_factory=list)
     failed: object = None           # the record of the move that did not rest, when kept
+    moves: int = 0                  # test moves made
+    unsettled: int = 0              # ... of which did not come to rest
 
 
 def search(cands: list[Candidate], trial: Callable[[Candidate], Trial],

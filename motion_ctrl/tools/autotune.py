@@ -185,18 +185,27 @@ def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, rest
 def test_moves(rec: MoveRecorder, axis, registers, counts_per_m: float):
     """rest.search's trial over ROS: the candidate's `registers(candidate)` set, then
     rest.TEST_MOVES, each until MOTION_DONE (rest.TEST_TIMEOUT) and rest.TEST_REST at rest; a
-    trial ends at the first move that does not rest."""
-    def trial(c: rest.Candidate) -> rest.Trial:
+    trial ends at the first move that does not rest, unless `every` (then all are made and
+    counted)."""
+    def trial(c: rest.Candidate, every: bool = False) -> rest.Trial:
         axis.set(registers(c))
         settles: list[float] = []
+        out = rest.Trial(c, True)
         for d in rest.TEST_MOVES:
             r = rec.move(f'test {d:+g} counts', d / counts_per_m, counts_per_m,
                          rest.TEST_TIMEOUT, rest.TEST_REST, tolerate=True)
-            if not r.settled:
-                return rest.Trial(c, False, f'test move to {d:+g} counts: {r.rest.describe()}',
-                                  settles, r)
-            settles.append(r.settle_ms)
-        return rest.Trial(c, True, '', settles)
+            out.moves += 1
+            if r.settled:
+                settles.append(r.settle_ms)
+                continue
+            out.unsettled += 1
+            if out.ok:
+                out.ok, out.reason, out.failed = False, (f'test move to {d:+g} counts: '
+                                                        f'{r.rest.describe()}'), r
+            if not every:
+                break
+        out.settle_ms = settles
+        return out
     return trial
 
 
@@ -358,10 +367,11 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
         log('autotune: the rest settings, tried with short test moves (rest.search)')
         trial = test_moves(rec, axis, tuning.registers, cpm)
         if tuning.plan.control is not None:
-            t = trial(tuning.plan.control)
+            t = trial(tuning.plan.control, every=True)
             tuning.control = t
             log(f'autotune: (for the record) {t.candidate}, as the gains alone would run: '
-                + ('every test move at rest' if t.ok else t.reason))
+                + ('every test move at rest' if t.ok else
+                   f'{t.unsettled} of {t.moves} test moves not at rest; the first, {t.reason}'))
         chosen, made = rest.search(tuning.plan.candidates, trial,
                                    log=lambda x: log(f'autotune: {x}'))
         tuning.trials, tuning.tried = made, True
@@ -412,7 +422,8 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
                                       tuning.registers()['fine_position_tolerance'] * cpm),
         control=None if tuning.control is None else dict(
             tried=str(tuning.control.candidate), at_rest=tuning.control.ok,
-            reason=tuning.control.reason),
+            reason=tuning.control.reason, moves=tuning.control.moves,
+            unsettled=tuning.control.unsettled),
         trials=[dict(tried=str(t.candidate), at_rest=t.ok, reason=t.reason,
                      settle_ms=[float(x) for x in t.settle_ms]) for t in tuning.trials])
     (out / 'verification.yaml').write_text(yaml.safe_dump(summary, sort_keys=False,
