@@ -903,7 +903,7 @@ def plot_steps(path, runs: dict, *, title: str = '') -> None:
             settle = f'{m.settle_ms:.0f} ms' if math.isfinite(m.settle_ms) else 'none'
             top.plot(m.t[keep] * 1e3, m.error[keep], '-', color=c, lw=1.1,
                      label=f'{name}: settle {settle}, final {m.final_error:+.2f}')
-            mid.plot(m.t, m.error, '-', color=c, lw=1.0, label=f'{name}: {m.rest.describe()}')
+            mid.plot(m.t, m.error, '-', color=c, lw=1.0, label=f'{name}: {m.rest.short()}')
             if m.output.size:
                 bot.plot(m.t, m.output, '-', color=c, lw=0.8)
             if math.isfinite(m.settle_ms):
@@ -920,7 +920,7 @@ def plot_steps(path, runs: dict, *, title: str = '') -> None:
         top.legend(fontsize=7, loc='lower right')
         mid.set_ylim(-5, 5)
         mid.set_xlim(-0.1, span)
-        mid.legend(fontsize=6.5, loc='upper right')
+        mid.legend(fontsize=7, loc='upper right')
         bot.set_xlim(-0.1, span)
         bot.set_xlabel('time from the end of the profile [s]')
     axes[0][0].set_ylabel('slide error (joint_states) [linear counts]')

@@ -298,6 +298,15 @@ class Judgement:
     amplitude: float = 0.0
     reversals: int = 0
 
+    def short(self) -> str:
+        """describe() in a few words, for a plot's legend."""
+        if self.settled:
+            return 'at rest'
+        if not self.done:
+            cyc = f'{self.period:.2f} s, ' if math.isfinite(self.period) else ''
+            return f'limit cycle {cyc}±{self.amplitude:.1f} counts'
+        return 'not at rest after MOTION_DONE'
+
     def describe(self) -> str:
         if self.settled:
             return 'at rest'
