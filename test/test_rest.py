@@ -131,7 +131,9 @@ def test_a_limit_cycle_is_judged_with_its_period_and_amplitude():
 def test_a_winding_down_integrator_is_at_rest_a_turning_output_is_not():
     """After MOTION_DONE: the integrator winding down (monotonic, with a servo tick's kick of
     kd each time the motor creeps a count) and then holding is rest; an output that turns back
-    by 5 % of the friction, or a slide that moves a count, is not."""
+    by 5 % of the friction, or a slide that moves a count, is not. Hunting, what a wider window
+    is for, is the slide moving (or, without MOTION_DONE, the output reversing); a slow
+    approach or a ringing output is not."""
     def wind(x):
         kick = -0.07 if int(x * 1e3) % 50 == 0 else 0.0      # kd on a motor count: one tick
         return max(-0.1 + 0.37 * x, 0.02) + kick
@@ -141,11 +143,14 @@ def test_a_winding_down_integrator_is_at_rest_a_turning_output_is_not():
     ring = out + 0.03 * np.sin(2 * math.pi * 5 * t)          # 0.06 V p-p: > 5 % of 0.36 V
     j = rest.judge(t, pos, ring, None, 0.0, CPM, 0.36)
     assert not j.settled and j.output_turns >= 10
+    assert not j.hunts                  # the slide still: no window fixes a ring
     moved = pos.copy()
     moved[1500:] += COUNT
     j = rest.judge(t, moved, out, None, 0.0, CPM, 0.36)
-    assert not j.settled and j.moved == 1.0
+    assert not j.settled and j.moved == 1.0 and j.hunts
     assert j.describe() == 'not at rest after MOTION_DONE: the slide moved 1 count'
+    slow = rest.judge(t, pos, np.linspace(0.2, 0.6, t.size), 0.0, None, CPM, 0.36)
+    assert not slow.settled and not slow.hunts       # winding up against stiction, no reversal
 
 
 # ------------------------------------------------------------------------------------------------
@@ -281,9 +286,10 @@ def _trial(gains: dict, plant: dict, registers):
         for d in rest.TEST_MOVES:
             t, pos, out, end, done, _ = _move(h, d / CPM, rest.TEST_TIMEOUT, rest.TEST_REST)
             j = rest.judge(t, pos, out, end, done, CPM, gains['friction_ff'])
-            if not j.settled:
+            if j.hunts:
                 return rest.Trial(c, False, f'{d:+g}: {j.describe()}', settles)
-            settles.append((done - end) * 1e3)
+            if done is not None and end is not None:
+                settles.append((done - end) * 1e3)
         return rest.Trial(c, True, '', settles)
     return trial
 

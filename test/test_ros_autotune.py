@@ -149,7 +149,7 @@ def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
     """`autotune --spawn --lockstep --apply` on a sticky slide. identify's creeps measure the
     breakaway, and the rest rule predicts the slip and proposes ±1 count; today's autotune
     (the gains with the rest as shipped, tried for the record on every test move) leaves some
-    of them unsettled; where the shipped gains hunt (a stick-slip limit cycle, reported with
+    of them hunting; where the shipped gains hunt (a stick-slip limit cycle, reported with
     its period and amplitude), the controller reports it in its log; after the proposal every
     verification move
     reaches MOTION_DONE, the median within 300 ms of the end of the profile, the simulated
@@ -170,7 +170,7 @@ def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
     assert 1.0 < r['slip_counts'] < 2.0 and r['window_counts'] == 1.0, r
     assert r['promise'].startswith('±1 count of a target on a whole count'), r
     # the gains alone, the rest as shipped (today's autotune): a test move or more not at rest
-    assert not r['control']['at_rest'] and r['control']['unsettled'] >= 1, r
+    assert not r['control']['at_rest'] and r['control']['hunted'] >= 1, r
     before = v['before']['moves'][0]
     if not before['at_rest']:
         # the shipped gains hunt (on this slide, always in the harness): the verification

@@ -843,7 +843,8 @@ def move_result(label, target, start, t, position, effort, t_end, t_done, counts
     over = max(0.0, float(np.max(sign * err)))
     ref = t_end if t_end is not None else float(t[0])
     judged = rest.judge(t, pos, eff, t_end, t_done, counts_per_m, coulomb)
-    return MoveResult(label, float(target), settle, over, float(np.mean(err[last])),
+    # (rounded: the readings of a count off give 1 ± 1e-10 counts)
+    return MoveResult(label, float(target), settle, over, round(float(np.mean(err[last])), 6),
                       float(np.ptp(eff[at_rest])), t - ref, err, judged, eff)
 
 

@@ -34,8 +34,11 @@ The rule (`candidates`, then test moves over the axis, `search`):
   proposal has it, or 0.5 × if the test moves hunt with 0.75 (the aid is a relay outside the
   window: too strong, it throws the motor across the backlash and the slide through the window).
 * The candidates are tried in that order, windows from the narrowest the slip allows up, each
-  with the two aids: the first whose short test moves (both ways, long and short, on and
-  between counts) all come to rest is proposed. The accuracy promised is its window's.
+  with the two aids: the first under which none of the short test moves (both ways, long and
+  short, on and between counts, steps of a few counts from rest) hunts is proposed (hunting:
+  the slide pushed past the window and back, or moving after MOTION_DONE; a move that is only
+  slow, or whose output rings with the slide still, is not the window's to fix). The accuracy
+  promised is its window's.
 * **Settling time**: at least one period of the slide on its screw (1 / f_a: a slip in progress
   ends within half of one), else as the axis has it.
 * **Output deadband**: 0. It compensates an amplifier or valve deadband (none is measured: the
@@ -215,7 +218,7 @@ class Trial:
     settle_ms: list = field(default_factory=list)
     failed: object = None           # the record of the move that did not rest, when kept
     moves: int = 0                  # test moves made
-    unsettled: int = 0              # ... of which did not come to rest
+    hunted: int = 0                 # ... of which hunted
 
 
 def search(cands: list[Candidate], trial: Callable[[Candidate], Trial],
@@ -297,6 +300,15 @@ class Judgement:
     period: float = float('nan')
     amplitude: float = 0.0
     reversals: int = 0
+
+    @property
+    def hunts(self) -> bool:
+        """The slide was pushed past the window and back (no MOTION_DONE, the output reversed),
+        or it moved after MOTION_DONE: what a wider window is for. A move that is only slow
+        (no MOTION_DONE yet, no reversal: the integrator still winding against stiction), or
+        whose output rings after MOTION_DONE with the slide still, is not settled but not
+        hunting: no window moves that."""
+        return (not self.done and self.reversals >= 1) or (self.done and self.moved > 0)
 
     def short(self) -> str:
         """describe() in a few words, for a plot's legend."""

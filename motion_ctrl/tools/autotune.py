@@ -185,8 +185,8 @@ def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, rest
 def test_moves(rec: MoveRecorder, axis, registers, counts_per_m: float):
     """rest.search's trial over ROS: the candidate's `registers(candidate)` set, then
     rest.TEST_MOVES, each until MOTION_DONE (rest.TEST_TIMEOUT) and rest.TEST_REST at rest; a
-    trial ends at the first move that does not rest, unless `every` (then all are made and
-    counted)."""
+    trial fails at the first move that hunts (rest.Judgement.hunts) and ends there, unless
+    `every` (then all are made and those that hunt counted)."""
     def trial(c: rest.Candidate, every: bool = False) -> rest.Trial:
         axis.set(registers(c))
         settles: list[float] = []
@@ -195,10 +195,11 @@ def test_moves(rec: MoveRecorder, axis, registers, counts_per_m: float):
             r = rec.move(f'test {d:+g} counts', d / counts_per_m, counts_per_m,
                          rest.TEST_TIMEOUT, rest.TEST_REST, tolerate=True)
             out.moves += 1
-            if r.settled:
-                settles.append(r.settle_ms)
+            if not r.rest.hunts:
+                if math.isfinite(r.settle_ms):
+                    settles.append(r.settle_ms)
                 continue
-            out.unsettled += 1
+            out.hunted += 1
             if out.ok:
                 out.ok, out.reason, out.failed = False, (f'test move to {d:+g} counts: '
                                                         f'{r.rest.describe()}'), r
@@ -371,7 +372,7 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
             tuning.control = t
             log(f'autotune: (for the record) {t.candidate}, as the gains alone would run: '
                 + ('every test move at rest' if t.ok else
-                   f'{t.unsettled} of {t.moves} test moves not at rest; the first, {t.reason}'))
+                   f'{t.hunted} of {t.moves} test moves hunted; the first, {t.reason}'))
         chosen, made = rest.search(tuning.plan.candidates, trial,
                                    log=lambda x: log(f'autotune: {x}'))
         tuning.trials, tuning.tried = made, True
@@ -423,7 +424,7 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
         control=None if tuning.control is None else dict(
             tried=str(tuning.control.candidate), at_rest=tuning.control.ok,
             reason=tuning.control.reason, moves=tuning.control.moves,
-            unsettled=tuning.control.unsettled),
+            hunted=tuning.control.hunted),
         trials=[dict(tried=str(t.candidate), at_rest=t.ok, reason=t.reason,
                      settle_ms=[float(x) for x in t.settle_ms]) for t in tuning.trials])
     (out / 'verification.yaml').write_text(yaml.safe_dump(summary, sort_keys=False,
