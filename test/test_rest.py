@@ -151,6 +151,8 @@ def test_a_winding_down_integrator_is_at_rest_a_turning_output_is_not():
     assert j.describe() == 'not at rest after MOTION_DONE: the slide moved 1 count'
     slow = rest.judge(t, pos, np.linspace(0.2, 0.6, t.size), 0.0, None, CPM, 0.36)
     assert not slow.settled and not slow.hunts       # winding up against stiction, no reversal
+    stuck = rest.judge(t, pos, np.linspace(0.2, -0.3, t.size), 0.0, None, CPM, 0.36)
+    assert stuck.reversals == 1 and not stuck.hunts  # the output reversed, the slide did not
 
 
 # ------------------------------------------------------------------------------------------------

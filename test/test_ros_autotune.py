@@ -16,11 +16,11 @@ import pytest
 import yaml
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
                           '--lockstep', '--apply', '--preset', 'stiff', '-o', str(tmp_path)],
-                         env=node_env, capture_output=True, text=True, timeout=230)
+                         env=node_env, capture_output=True, text=True, timeout=290)
     print(run.stdout[-4000:])
     assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
         + run.stderr[-3000:]
@@ -35,6 +35,12 @@ def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
         assert a['output_pp_v'] < 0.2, a
     assert sorted(m['settle_ms'] for m in v['after']['moves'])[1] <= 150.0
     assert 'x.friction_ff_at_rest' in regs
+    # issue 30, must-show 2: the default slide slips a few hundredths of a count; its rest
+    # settings stay as shipped (the exact count), and every move is at rest for 2 s
+    assert v['rest']['slip_counts'] < 0.5 and v['rest']['window_counts'] == 0.0, v['rest']
+    assert regs['x.window_centre'] == 'reading' and regs['x.deadband_tolerance'] == 0.0
+    assert regs['x.fine_position_tolerance'] == 1.5e-6
+    assert all(m['at_rest'] for m in v['after']['moves']), v['after']
     for name in ('open_loop.png', 'steps.png'):
         assert (tmp_path / name).stat().st_size > 10_000
 
@@ -63,7 +69,7 @@ def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     Not autotune's to judge."""
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
                           '--lockstep', '--apply', '-o', str(tmp_path)] + plant,
-                         env=node_env, capture_output=True, text=True, timeout=230)
+                         env=node_env, capture_output=True, text=True, timeout=290)
     print(run.stdout[-5000:])
     path = tmp_path / 'identify' / 'identify.yaml'
     assert path.is_file(), f'identify failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
@@ -79,7 +85,7 @@ def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     return run, regs
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
     run, regs = _autotune(node_env, tmp_path, HEAVY_SLIDE, resonance_hz=45.8)
     assert regs['x.notch_n1'] != 0.0 and regs['x.notch_d2'] != 0.0, run.stdout[-3000:]
@@ -101,7 +107,7 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
 @pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
                     reason='opt-in, 48 s: MOTION_CTRL_LONG=1 (test_autotune checks the rule on '
                            'this plant without ROS)')
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env, tmp_path):
     """The screw ten times softer (resonance 76.8 Hz) under the default 5 kg slide: the shipped
     gains lose margin (2026-11-24: 3.7 dB / 27.0° measured), autotune finds the resonance and,

@@ -44,9 +44,10 @@ The rule (`candidates`, then test moves over the axis, `search`):
 * **Output deadband**: 0. It compensates an amplifier or valve deadband (none is measured: the
   jogs' output is Coulomb plus viscous) and, ratioed inside the window, it would keep pushing
   there, where the slide must be left alone.
-* **Ixx34** (`integration_mode`): always. Holding the integrator during moves starts each rest
-  with the previous rest's push, in whatever direction that was: in the harness it left more
-  moves unsettled, not fewer.
+* **Ixx34** (`integration_mode`): always, as shipped. Holding the integrator during moves
+  starts each rest with the previous rest's push, whichever way that was; with the window it
+  settled the sticky slides no better in the harness (doc/rest.md), without it left more moves
+  unsettled.
 
 Rest, judged from samples (`judge`): a move is settled when MOTION_DONE came and afterwards, for
 the whole rest watched, the slide's reading does not change and the output does not turn back
@@ -220,6 +221,13 @@ class Trial:
     moves: int = 0                  # test moves made
     hunted: int = 0                 # ... of which hunted
 
+    def describe(self) -> str:
+        if not self.ok:
+            return self.reason
+        med = f', median settle {float(np.median(self.settle_ms)):.0f} ms' \
+            if self.settle_ms else ''
+        return f'no test move hunted ({len(self.settle_ms)} reached MOTION_DONE{med})'
+
 
 def search(cands: list[Candidate], trial: Callable[[Candidate], Trial],
            log=print) -> tuple[Candidate | None, list[Trial]]:
@@ -230,8 +238,7 @@ def search(cands: list[Candidate], trial: Callable[[Candidate], Trial],
         t = trial(c)
         made.append(t)
         if t.ok:
-            med = float(np.median(t.settle_ms)) if t.settle_ms else float('nan')
-            log(f'rest: {c}: every test move at rest (median settle {med:.0f} ms)')
+            log(f'rest: {c}: {t.describe()}')
             return c, made
         log(f'rest: {c}: {t.reason}')
     return None, made
@@ -303,12 +310,13 @@ class Judgement:
 
     @property
     def hunts(self) -> bool:
-        """The slide was pushed past the window and back (no MOTION_DONE, the output reversed),
-        or it moved after MOTION_DONE: what a wider window is for. A move that is only slow
-        (no MOTION_DONE yet, no reversal: the integrator still winding against stiction), or
-        whose output rings after MOTION_DONE with the slide still, is not settled but not
-        hunting: no window moves that."""
-        return (not self.done and self.reversals >= 1) or (self.done and self.moved > 0)
+        """The slide was pushed past the window and back (no MOTION_DONE, the output reversed
+        and the slide moved since), or it moved after MOTION_DONE: what a wider window is for.
+        A move that is only slow (no MOTION_DONE yet, the slide still: the integrator winding
+        against stiction), or whose output rings after MOTION_DONE with the slide still, is not
+        settled but not hunting: no window moves that."""
+        return (not self.done and self.reversals >= 1 and self.amplitude > 0.0) or \
+            (self.done and self.moved > 0)
 
     def short(self) -> str:
         """describe() in a few words, for a plot's legend."""

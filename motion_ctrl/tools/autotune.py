@@ -263,9 +263,7 @@ class Tuning:
         lines = list(self.plan.notes)
         if self.trials:
             for t in self.trials:
-                lines.append(f'rest: tried {t.candidate}: ' + (
-                    f'every test move at rest, median settle '
-                    f'{float(np.median(t.settle_ms)):.0f} ms' if t.ok else t.reason))
+                lines.append(f'rest: tried {t.candidate}: {t.describe()}')
         chosen = 'chosen by the test moves' if self.tried else \
             'from the prediction, not tried on the axis (--apply tries it)'
         lines.append(f'rest: proposed {self.rest} ({chosen})')
