@@ -156,11 +156,10 @@ def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
     breakaway, and the rest rule predicts the slip and proposes ±1 count; today's autotune
     (the gains with the rest as shipped, tried for the record on every test move) leaves some
     of them hunting; where the shipped gains hunt (a stick-slip limit cycle, reported with
-    its period and amplitude), the controller reports it in its log; after the proposal every
-    verification move
-    reaches MOTION_DONE, the median within 300 ms of the end of the profile, the simulated
-    slide within 1 count of the target, and stays: 2 s with neither the reading nor the output
-    turning back."""
+    its period and amplitude), the controller reports it in its log and /diagnostics; after the
+    proposal every verification move reaches MOTION_DONE, the median within 300 ms of the end
+    of the profile, the simulated slide within 1 count of the target, and stays: 2 s with
+    neither the reading nor the output turning back."""
     plant = [a for p in STICKY[name] for a in ('--plant', p)]
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
                           '--lockstep', '--apply', '-o', str(tmp_path)] + plant,
@@ -183,6 +182,7 @@ def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
         # says with what period and amplitude, and the controller has said so in its log
         assert before['limit_cycle_period_s'] > 0.5, before
         assert 'x: hunting: ' in (tmp_path / 'controller.log').read_text()
+        assert "the controller's /diagnostics: hunting: " in run.stdout
     after = v['after']['moves']
     assert len(after) == 3
     for m in after:

@@ -55,15 +55,25 @@ class MoveRecorder:
     (the controller's clock: sim time in lockstep). Times are counted in samples (one per servo
     tick at `rate`), so a move is measured alike in real time and in lockstep."""
 
-    def __init__(self, client, axis: str, rate: float, coulomb: float):
+    def __init__(self, client, axis: str, rate: float, coulomb: float = 0.0):
         from sensor_msgs.msg import JointState
+        from diagnostic_msgs.msg import DiagnosticArray
         import msg_defs as md
         self.client, self.axis, self.rate, self.coulomb = client, axis, rate, coulomb
         self._type = JointState
         self._raw: list = []
         self._on = False
+        self.hunting = ''        # the controller's /diagnostics message while it reports hunting
         client.create_subscription(JointState, md.JOINT_STATES, self._on_joint,
                                    md.SERVO_READ_QOS, raw=True)
+        client.create_subscription(DiagnosticArray, md.DIAGNOSTICS, self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg) -> None:
+        for st in msg.status:
+            if st.hardware_id == self.axis and st.name.endswith(f'axis {self.axis}'):
+                values = {kv.key: kv.value for kv in st.values}
+                if values.get('hunting') == 'True':
+                    self.hunting = st.message
 
     def _on_joint(self, data: bytes) -> None:
         if self._on:
@@ -82,6 +92,7 @@ class MoveRecorder:
         client, name = self.client, self.axis
         self._raw.clear()
         self._on = True
+        self.hunting = ''
         mark = len(client.status_log[name])
         try:
             if not client.spin_until(lambda: len(self._raw) > 0, 5.0):
@@ -161,6 +172,8 @@ def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, rest
     if tolerate:
         r = rec.move(RETURN, 0.0, counts_per_m, timeout, rest_s, tolerate)
         log(f'autotune:   {RETURN}: {r.rest.describe()}')
+        if rec.hunting:
+            log(f"autotune:   the controller's /diagnostics: {rec.hunting}")
         if not r.settled:
             log('autotune:   (the axis does not come to rest with these registers: the rest '
                 'of their moves is skipped)')
@@ -175,6 +188,8 @@ def run_moves(rec: MoveRecorder, axis, counts_per_m: float, timeout: float, rest
             f'final error {r.final_error:+.2f} counts, output p-p {r.output_pp:.3f} V; '
             f'{r.rest.describe()}')
         out.append(r)
+        if rec.hunting:
+            log(f"autotune:   the controller's /diagnostics: {rec.hunting}")
         if not r.settled and tolerate:
             log('autotune:   (the axis does not come to rest with these registers: the rest '
                 'of their moves is skipped)')
@@ -337,6 +352,9 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     current = axis.get(*READ)
     rate_value = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]
     rate = float(parameter_value_to_python(rate_value))  # type: ignore[arg-type]
+    # (subscribed now, before identify: a reader joining later holds the controller up, README
+    # Notes)
+    rec = MoveRecorder(client, args.axis, rate) if args.apply else None
     if args.source is None:
         from motion_ctrl.tools import identify as tid
         iargs = tid.parser().parse_args(['--axis', args.axis])
@@ -355,7 +373,8 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     if not args.apply:
         return result
     cpm = tuning.cpm
-    rec = MoveRecorder(client, args.axis, rate, tuning.prop.registers['friction_ff'])
+    assert rec is not None
+    rec.coulomb = tuning.prop.registers['friction_ff']
     saved = {k: current[k] for k in at.GAIN_REGISTERS + rest.REST_REGISTERS}
     changed = False
     try:
