@@ -265,7 +265,7 @@ def _move(h: Harness, target: float, timeout: float, rest_s: float):
     h.tick()
     i = len(tr.t)
     end = done = None
-    for _ in range(round(timeout / h.T)):
+    for _ in range(round(timeout / 1e-3)):       # (the harness's servo period: 1 ms)
         h.tick()
         if end is None and h.axis.status & Status.AT_TARGET:
             end = h.time
