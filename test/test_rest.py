@@ -90,18 +90,23 @@ def test_the_registers_of_a_window_and_the_accuracy_they_promise():
 
 def test_the_plan_for_an_axis():
     """From identify's friction: a slide that slips under a count keeps the shipped windows (no
-    control trial: they are the first candidate); one that slips more starts at its window,
+    control trial: they are the first candidate; under half a count no test moves at all); one
+    that slips more starts at its window,
     with the shipped settings tried first for the record; a motor loop, which does not see the
     slide, keeps the windows as shipped and no aid; no creep measured: from the exact count
     up."""
     p = rest.plan(0.1 / CPM, CPM, 'dual')
     assert p.candidates[0] == rest.Candidate(0.0, 0.75) and p.control is None
+    assert not p.test                   # under half a count: no test moves
+    p = rest.plan(0.8 / CPM, CPM, 'dual')
+    assert p.candidates[0] == rest.Candidate(0.0, 0.75) and p.test
     p = rest.plan(1.4 / CPM, CPM, 'dual')
     assert p.candidates[0] == rest.Candidate(1.0, 0.75) and p.control == rest.Candidate(0.0, 0.75)
-    assert 'slips 1.40 counts' in p.notes[0]
+    assert 'slips 1.40 counts' in p.notes[0] and p.test
     p = rest.plan(1.4 / CPM, CPM, 'motor')
-    assert p.candidates == [rest.Candidate(0.0, 0.0)]
+    assert p.candidates == [rest.Candidate(0.0, 0.0)] and not p.test
     assert rest.plan(None, CPM, 'dual').candidates[0].window == 0.0
+    assert rest.plan(None, CPM, 'dual').test
 
 
 # ------------------------------------------------------------------------------------------------

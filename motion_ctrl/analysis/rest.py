@@ -33,7 +33,8 @@ The rule (`candidates`, then test moves over the axis, `search`):
 * **Breakaway aid** (`friction_ff_at_rest`): 0.75 × the Coulomb friction as autotune's gains
   proposal has it, or 0.5 × if the test moves hunt with 0.75 (the aid is a relay outside the
   window: too strong, it throws the motor across the backlash and the slide through the window).
-* The candidates are tried in that order, windows from the narrowest the slip allows up, each
+* The candidates are tried in that order (none where the slip is under half a count: the exact
+  count holds it twice over), windows from the narrowest the slip allows up, each
   with the two aids: the first under which none of the short test moves (both ways, long and
   short, on and between counts, steps of a few counts from rest) hunts is proposed (hunting:
   the slide pushed past the window and back, or moving after MOTION_DONE; a move that is only
@@ -75,6 +76,8 @@ __all__ = ['WINDOWS', 'AID_SHARES', 'TURN_SHARE', 'slip', 'coverage', 'promise',
 WINDOWS = (0.0, 1.0, 1.5, 2.0, 3.0)
 #: breakaway aid tried, as a share of the Coulomb friction (autotune's gains proposal: 0.75)
 AID_SHARES = (0.75, 0.5)
+#: a slip under this [counts] the exact count holds twice over: no test moves are made
+SURE_SLIP = 0.5
 #: the tolerances are this much [counts] over the window: a reading exactly on it is inside
 WINDOW_HAIR = 0.01
 #: an output that moves back by this share of the Coulomb friction has turned
@@ -185,6 +188,13 @@ class Plan:
     candidates: list
     control: Candidate | None
     notes: list = field(default_factory=list)
+
+    @property
+    def test(self) -> bool:
+        """Whether test moves are worth making: not where the slip is known to be under
+        SURE_SLIP (the exact count holds it twice over) or the loop does not see the slide."""
+        return len(self.candidates) > 1 and (self.slip_counts is None
+                                             or self.slip_counts >= SURE_SLIP)
 
 
 def plan(slip_m: float | None, counts_per_m: float, feedback: str) -> Plan:

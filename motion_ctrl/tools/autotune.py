@@ -279,8 +279,10 @@ class Tuning:
         if self.trials:
             for t in self.trials:
                 lines.append(f'rest: tried {t.candidate}: {t.describe()}')
-        chosen = 'chosen by the test moves' if self.tried else \
-            'from the prediction, not tried on the axis (--apply tries it)'
+        chosen = ('chosen by the test moves' if self.tried else
+                  'no test moves needed: the slip is under half a count, or the loop does not '
+                  'see the slide' if not self.plan.test else
+                  'from the prediction, not tried on the axis (--apply tries it)')
         lines.append(f'rest: proposed {self.rest} ({chosen})')
         lines.append('rest: accuracy: the slide stops within ' + rest.describe_promise(
             regs['window_centre'], regs['fine_position_tolerance'] * self.cpm)
@@ -382,22 +384,23 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
         runs = {'before': run_moves(rec, axis, cpm, args.move_timeout, args.rest, log,
                                     tolerate=True)}
         changed = True
-        log('autotune: the rest settings, tried with short test moves (rest.search)')
-        trial = test_moves(rec, axis, tuning.registers, cpm)
-        if tuning.plan.control is not None:
-            t = trial(tuning.plan.control, every=True)
-            tuning.control = t
-            log(f'autotune: (for the record) {t.candidate}, as the gains alone would run: '
-                + ('every test move at rest' if t.ok else
-                   f'{t.hunted} of {t.moves} test moves hunted; the first, {t.reason}'))
-        chosen, made = rest.search(tuning.plan.candidates, trial,
-                                   log=lambda x: log(f'autotune: {x}'))
-        tuning.trials, tuning.tried = made, True
-        if chosen is None:
-            log('autotune: no rest settings tried held the slide at rest: the widest is '
-                'proposed; the verification below shows how it does')
-            chosen = tuning.plan.candidates[-1]
-        tuning.rest = chosen
+        if tuning.plan.test:
+            log('autotune: the rest settings, tried with short test moves (rest.search)')
+            trial = test_moves(rec, axis, tuning.registers, cpm)
+            if tuning.plan.control is not None:
+                t = trial(tuning.plan.control, every=True)
+                tuning.control = t
+                log(f'autotune: (for the record) {t.candidate}, as the gains alone would run: '
+                    + ('no test move hunted' if t.ok else
+                       f'{t.hunted} of {t.moves} test moves hunted; the first, {t.reason}'))
+            chosen, made = rest.search(tuning.plan.candidates, trial,
+                                       log=lambda x: log(f'autotune: {x}'))
+            tuning.trials, tuning.tried = made, True
+            if chosen is None:
+                log('autotune: no rest settings tried held the slide at rest: the widest is '
+                    'proposed; the verification below shows how it does')
+                chosen = tuning.plan.candidates[-1]
+            tuning.rest = chosen
         yaml_path = tuning.write(out)
         log('\n'.join(tuning.rest_text()))
         axis.load_file(yaml_path)
