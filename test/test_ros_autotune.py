@@ -66,9 +66,10 @@ def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     `resonance_hz` makes the test an XFAIL with the number: identify's known failure (README,
     test_ros_identify), its first stepped sine gone wrong and the fine one searching around a
     wrong resonance (one run of six on the heavy slide, 2026-11-24: 178 Hz, damping 0.93).
-    Not autotune's to judge."""
+    Not autotune's to judge. Each move is watched 0.5 s at rest (`--rest`; the resonance, not
+    the rest, is these tests' question: the suite's time)."""
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
-                          '--lockstep', '--apply', '-o', str(tmp_path)] + plant,
+                          '--lockstep', '--apply', '--rest', '0.5', '-o', str(tmp_path)] + plant,
                          env=node_env, capture_output=True, text=True, timeout=290)
     print(run.stdout[-5000:])
     path = tmp_path / 'identify' / 'identify.yaml'
