@@ -48,6 +48,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 import msg_defs as md
 from motion_ctrl.ros import ros_env, servo_bus, ros_params
+from motion_ctrl.ros.follow_action import FollowJointTrajectoryServer
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
@@ -142,6 +143,8 @@ class ControllerNode(ros_params.RegisterNode):
         threading.Thread(target=self._gather_loop, name='gather', daemon=True).start()
         for a in self.axis_names:
             self._make_services(a)
+        # follow_joint_trajectory, controller_state, query_state (issue 28)
+        self.follow = FollowJointTrajectoryServer(self)
 
         self.last_status: dict[str, int | None] = {a: None for a in self.axis_names}
         self.last_status_time = {a: -math.inf for a in self.axis_names}
@@ -392,6 +395,7 @@ class ControllerNode(ros_params.RegisterNode):
                 self.pub_status[a].send(UInt32(data=s))
                 self.last_status[a] = s
                 self.last_status_time[a] = now
+        self.follow.tick(now)            # the trajectory goal, after the outputs (never waits)
         self.stats.work(time.perf_counter() - t_start)
 
     def shutdown_outputs(self) -> None:
@@ -416,6 +420,8 @@ class ControllerNode(ros_params.RegisterNode):
         # as ~30 lines of "leaked" on every stop).
         self.trajectories.put(None)
         self.gathers.put(None)
+        if hasattr(self, 'follow'):      # (a node refused half-made has none)
+            self.follow.destroy()
         super().destroy_node()
 
     def _publish_diagnostics(self) -> None:
