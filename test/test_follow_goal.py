@@ -152,7 +152,7 @@ def test_a_goal_through_several_points_succeeds_within_a_count(xy):
         assert abs(xy.plants[a].x_l - s['positions'][-1][j]) <= COUNT, a
         assert xy.axes[a].status & S.MOTION_DONE
     # feedback all along: the index passes every point, the desired path is continuous
-    assert [fb.index for fb in d.feedback][0] == 1 and d.feedback[-1].index == 4
+    assert d.feedback[0].next_point == 1 and d.feedback[-1].next_point == 4
     desired_x = np.array([fb.desired[0][0] for fb in d.feedback])
     assert np.abs(np.diff(desired_x)).max() <= 0.1 * xy.T * 1.01
     assert max(abs(fb.error[0][0]) for fb in d.feedback) < 20 * COUNT

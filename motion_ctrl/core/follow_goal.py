@@ -148,12 +148,13 @@ class Ended(NamedTuple):
 class Feedback(NamedTuple):
     """The running goal now, per axis in `names` order: desired (command) position, velocity,
     acceleration; actual; error (position: the following error, i.e. against the command of the
-    encoder sample's own time); `index`, the number of the trajectory's points passed."""
+    encoder sample's own time); `next_point`, the number of the trajectory's points passed
+    (the index of the next one: control_msgs' feedback `index`)."""
     names: tuple
     desired: tuple
     actual: tuple
     error: tuple
-    index: int
+    next_point: int
 
 
 # ------------------------------------------------------------------------------ the checks

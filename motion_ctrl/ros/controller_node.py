@@ -144,7 +144,8 @@ class ControllerNode(ros_params.RegisterNode):
         for a in self.axis_names:
             self._make_services(a)
         # follow_joint_trajectory, controller_state, query_state (issue 28)
-        self.follow = FollowJointTrajectoryServer(self)
+        self.follow = FollowJointTrajectoryServer(self, MAX_SCHEDULE, MAX_TARGET_NAMES,
+                                                  MAX_TRAJECTORY_POINTS)
 
         self.last_status: dict[str, int | None] = {a: None for a in self.axis_names}
         self.last_status_time = {a: -math.inf for a in self.axis_names}

@@ -28,8 +28,13 @@ from motion_ctrl.core import follow_goal as fg
 
 
 class FollowJointTrajectoryServer:
-    def __init__(self, node):
+    """On `node` (a ControllerNode), with the node's limits on a trajectory: how far ahead a
+    stamp may schedule it [s], most joint names, most points ({'with accelerations': n,
+    'without': n})."""
+
+    def __init__(self, node, max_ahead: float, max_names: int, max_points: dict):
         self.node = node
+        self.limits = max_ahead, max_names, max_points
         self.runner: fg.GoalRunner | None = None
         try:
             from control_msgs.action import FollowJointTrajectory
@@ -45,10 +50,7 @@ class FollowJointTrajectoryServer:
             return
         from rclpy.action import ActionServer, CancelResponse, GoalResponse
 
-        from motion_ctrl.ros.controller_node import (MAX_SCHEDULE, MAX_TARGET_NAMES,
-                                                     MAX_TRAJECTORY_POINTS)
         self.mf = mf
-        self.limits = MAX_SCHEDULE, MAX_TARGET_NAMES, MAX_TRAJECTORY_POINTS
         self.runner = fg.GoalRunner(node.axes, self._start)
         self.to_check: queue.SimpleQueue = queue.SimpleQueue()     # _Goal to check
         self.checked: queue.SimpleQueue = queue.SimpleQueue()      # (_Goal, outcome) to submit
@@ -134,7 +136,7 @@ class FollowJointTrajectoryServer:
             if g is not None and fb is not None:
                 g.handle.handle.publish_feedback(self.mf.feedback(
                     self.node.get_clock().now().to_msg(), fb.names, fb.desired, fb.actual,
-                    fb.error, fb.index, now - g.t0))
+                    fb.error, fb.next_point, now - g.t0))
 
     def _report(self, ended: list[fg.Ended]) -> None:
         log = self.node.get_logger()
