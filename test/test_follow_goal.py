@@ -159,6 +159,27 @@ def test_a_goal_through_several_points_succeeds_within_a_count(xy):
 
 
 @pytest.mark.core_slow
+def test_a_moveit_like_goal_succeeds(xy):
+    """As MoveIt's time parameterization sends it: points every 0.1 s with positions,
+    velocities and accelerations (quintic segments), point 0 at t=0 the measured state (here a
+    count off the commanded position)."""
+    d = Driver(xy)
+    s = here(xy)
+    tau = np.linspace(0.0, 1.0, 11)
+    shape = (10 * tau ** 3 - 15 * tau ** 4 + 6 * tau ** 5, (30 * tau ** 2 - 60 * tau ** 3
+             + 30 * tau ** 4), 60 * tau - 180 * tau ** 2 + 120 * tau ** 3)
+    dist = {'x': 0.004, 'y': -0.002}
+    rows = [[[s[a] * (k == 0) + dist[a] * q[i] for a in 'xy'] for i in range(11)]
+            for k, q in enumerate(shape)]
+    rows[0][0] = [s['x'] + COUNT, s['y']]
+    d.send(spec(('x', 'y'), tau, *rows))
+    e = d.until_ended()
+    assert e.outcome == fg.SUCCEEDED, e
+    for a in 'xy':
+        assert abs(xy.plants[a].x_l - s[a] - dist[a]) <= COUNT, a
+
+
+@pytest.mark.core_slow
 def test_the_slide_braked_part_way_violates_the_path_tolerance(xy):
     d = Driver(xy)
     d.send(zigzag(xy))
