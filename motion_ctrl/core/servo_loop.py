@@ -325,9 +325,9 @@ class ServoLoop:
         ch.diverged = diverged
         hunting = axis.hunting
         if hunting.started:
-            out.log.append(('warning', f'{ch.name}: hunting: '
-                                       f'{hunting.describe(axis.loop_counts_per_m)} (autotune sizes '
-                                       'the anti-hunting window for the slide: deadband_tolerance, '
+            what = hunting.describe(axis.loop_counts_per_m)
+            out.log.append(('warning', f'{ch.name}: hunting: {what} (autotune sizes the '
+                                       'anti-hunting window for the slide: deadband_tolerance, '
                                        'fine_position_tolerance)'))
 
     def _scheduled(self, now: float, out: Tick) -> None:
