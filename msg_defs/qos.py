@@ -11,9 +11,13 @@ not a backlog, and not the repair of a lost one: a reliable reader holds every l
 until a lost one is resent, which waits for the writer's next heartbeat (up to seconds, measured
 here as feedback faults and targets seen late on a loaded machine). A best-effort reader matches
 a reliable writer; a lost sample is replaced by the next one a period later.
-Status words are reliable + transient local so a late subscriber sees the current word at once;
-so is the record of an excitation run (GATHER_QOS, the last run only): a reader that joins or
-loses a sample late still gets the whole record, repaired by the reliable protocol.
+Status words are reliable + transient local so a late subscriber sees the current word at once,
+with a history of STATUS_DEPTH words: a client that waits for MOTION_DONE to clear and rise
+again must get every change, and a controller that is its own clock (hardware sim, sim time)
+makes a move's changes within a millisecond of wall time; a reliable writer keeping only the
+last few would drop the older ones before a busy reader took them. So is the record of an
+excitation run (GATHER_QOS, the last run only): a reader that joins or loses a sample late still
+gets the whole record, repaired by the reliable protocol.
 """
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy
 
@@ -21,7 +25,8 @@ SERVO_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
 SERVO_READ_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
                             history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
-STATUS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+STATUS_DEPTH = 100
+STATUS_QOS = QoSProfile(depth=STATUS_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 GATHER_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

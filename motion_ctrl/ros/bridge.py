@@ -74,14 +74,20 @@ def interface_type(name: str):
     return found
 
 
-def outward_qos(info) -> QoSProfile:
+def latched_depth(topic: str) -> int:
+    """The history a latched topic keeps, as the node keeps it: a gather record is one run;
+    status words and the like keep msg_defs.STATUS_DEPTH, so that a reader behind gets every
+    change (MOTION_DONE cleared and raised again), not only the last."""
+    return md.GATHER_QOS.depth if topic.endswith('/gather') else md.STATUS_DEPTH
+
+
+def outward_qos(info, topic: str = '') -> QoSProfile:
     """The node's publisher QoS for the user's side: same reliability and durability; a
-    latched topic keeps its last sample only (a late joiner wants the current state, and a
-    gather record is one run), a stream a second of samples."""
+    latched topic keeps what the node keeps (latched_depth), a stream a second of samples."""
     latched = info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
     reliable = info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
     return QoSProfile(
-        depth=1 if latched else (STREAM_DEPTH if reliable else 10),
+        depth=latched_depth(topic) if latched else (STREAM_DEPTH if reliable else 10),
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
@@ -121,7 +127,7 @@ class _Outward:
         self.bridge, self.topic, self.msg_type = bridge, topic, msg_type
         # (a servo stream read on a node and thread of its own: nothing queues in front of it)
         self.reader = bridge.servo_out if topic in SERVO_TOPICS else bridge.servo
-        self.qos = outward_qos(info)
+        self.qos = outward_qos(info, topic)
         self.latched = self.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
         self.pub = bridge.public.create_publisher(msg_type, topic, self.qos)
         self.own = SHARED.get(type_name)
@@ -150,7 +156,7 @@ class _Outward:
                   or self.pub.get_subscription_count() > 0)
         if wanted and self.sub is None:
             # (a latched topic's every change: a status word's MOTION_DONE cleared and raised)
-            qos = QoSProfile(depth=10 if self.latched else self.qos.depth,
+            qos = QoSProfile(depth=self.qos.depth,
                              reliability=self.qos.reliability, durability=self.qos.durability)
             self.sub = self.reader.create_subscription(
                 self.msg_type, self.topic, self._copy, qos, raw=self.own is None)
