@@ -57,6 +57,7 @@ HEARTBEAT_LOST = 2.5            # heartbeat periods without one: the node is los
 SDO_TIMEOUT = 0.3               # s for an SDO answer (canopen's default)
 ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
+NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
 STATS = 100_000                 # cycles of latency kept for the benchmark
 
 
@@ -156,6 +157,7 @@ class CanopenHardware(HardwareInterface):
             raise HardwareError(f'canopen: servo_rate {reason}')
         import canopen
         network = canopen.Network()
+        network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
         try:
             network.connect(**self.bus_args)
         except Exception as e:      # python-can raises per interface (CanError, OSError, ...)

@@ -349,6 +349,7 @@ class VirtualDrives:
         self.axes = {a: VirtualAxis(a, cfg, substep_rate) for a, cfg in axes.items()}
         self.free_run = free_run
         self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1       # a stop waits at most this for the receiver
         self.lock = threading.Lock()
         self.syncs = 0
         self._last_step = time.monotonic()
