@@ -151,7 +151,7 @@ def sim(axes=('x',), **plant):
 
 def test_a_bad_plant_register_is_refused_at_configure_naming_the_axis():
     hw = SimHardware(['x', 'y'], T, {'y': {'slide_mass': -1.0}})
-    with pytest.raises(HardwareError, match=r'^sim: axis y: slide_mass: -1 kg is out of range'):
+    with pytest.raises(HardwareError, match=r'^sim: y.slide_mass: -1 kg is out of range'):
         hw.configure()
     assert hw.state == UNCONFIGURED
 

@@ -164,6 +164,15 @@ CONTROLLER_GLOBALS = (
        'Encoder data older than this opens the loop (FEEDBACK_FAULT).', min=0.0,
        min_exclusive=True, max=10.0),
     REALTIME_PRIORITY,
+    _r('hardware', 'string', 'topics', '', "Where the servo loop's I/O goes (read each tick: "
+       'the encoders; written: the outputs). topics: a plant node (or any drive bridge) over '
+       'the command / encoders topics. sim: the backlash slide simulated inside this loop, one '
+       'per axis, set by the plant registers on this node (<axis>.slide_mass, ..., and '
+       'substep_rate; a params file\'s plant: section counts too); it publishes plant_states, '
+       'amplifier_states and <axis>/amplifier_fault as the plant node does, and with '
+       'use_sim_time it is the clock: it runs as fast as the machine allows and publishes '
+       '/clock.', 'ros2_control hardware component, LinuxCNC HAL, PMAC servo interrupt',
+       choices=('topics', 'sim'), read_only=True),
 )
 
 MODES = ('position_pid', 'position_ipd', 'velocity_pid', 'velocity_ipd')
@@ -442,6 +451,14 @@ PLANT_GLOBALS = (
     REALTIME_PRIORITY,
 )
 PLANT_AXIS = {r.name: r for r in PLANT_PARAMETERS}
+PLANT_GLOBAL = {r.name: r for r in PLANT_GLOBALS}
+
+# The registers a hardware backend adds to the controller (declared only when `hardware` chooses
+# it): (controller-wide, per axis).
+HARDWARE_REGISTERS: dict[str, tuple[tuple[Register, ...], tuple[Register, ...]]] = {
+    'topics': ((), ()),
+    'sim': ((PLANT_GLOBAL['substep_rate'],), PLANT_PARAMETERS),
+}
 
 
 def plant_consistency(v: dict) -> list[str]:

@@ -10,10 +10,19 @@ concurrently, no lock is needed. In real time the timer's phase is moved, once, 
 encoder samples arrive (`motion_ctrl.core.feedback_sync`), so a sample does not wait up to a
 period.
 
-With `use_sim_time` the servo tick is driven by the encoder samples instead of a timer (like a
-drive synchronised to its fieldbus cycle): each new sample, stamped in sim time, is one tick, and
-the command carries the sample's stamp. With the plant in lockstep this makes a scenario
-deterministic. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
+The servo cycle's I/O goes through the hardware interface the read-only parameter `hardware`
+chooses (motion_ctrl.core.hardware): `topics` (ros.hardware_topics: the plant node over the
+`command` / `encoders` topics) or `sim` (sim.hardware: the slide's physics stepped inside this
+loop, configured by the plant's registers declared on this node, published as the plant node
+does by ros.plant_states).
+
+With `use_sim_time` and `hardware: topics` the servo tick is driven by the encoder samples
+instead of a timer (like a drive synchronised to its fieldbus cycle): each new sample, stamped in
+sim time, is one tick, and the command carries the sample's stamp. With the plant in lockstep
+this makes a scenario deterministic. With `use_sim_time` and `hardware: sim` this node is the
+clock: it ticks back to back, as fast as the machine allows, publishes `/clock` and runs the
+callbacks that came (targets, services, parameters) between batches of ticks (SIM_BATCH s of
+wall time): deterministic for targets stamped ahead. Its /clock is published once a batch. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
 clock is applied at the first tick at or after that stamp (a coordinated start of several axes,
 or a move at an exact sim time); other targets apply at once. A `joint_trajectory`
 (trajectory_msgs/JointTrajectory) is checked as a whole and run on all its axes on one time base
@@ -38,7 +47,6 @@ import sys
 import time
 
 import rclpy
-from rclpy.duration import Duration
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, UInt32
@@ -46,15 +54,22 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 from diagnostic_msgs.msg import DiagnosticArray
 
+from rosgraph_msgs.msg import Clock as ClockMsg
+
 import msg_defs as md
 from motion_ctrl.ros import ros_env, servo_bus, ros_params
+from motion_ctrl.ros.hardware_topics import TopicsHardware, seconds_of, stamp_of
+from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
 from motion_ctrl.core.gather import COLUMNS
+from motion_ctrl.core.hardware import HardwareError
 from motion_ctrl.core.servo_loop import ServoLoop
 from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
-                                   CONTROLLER_GLOBAL, consistency)
+                                        CONTROLLER_GLOBAL, HARDWARE_REGISTERS, PLANT_AXIS,
+                                        consistency, plant_consistency)
+from motion_ctrl.sim.hardware import SimHardware
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
 # Targets are read raw and a message larger than this is refused by its size before it is
@@ -74,14 +89,21 @@ MAX_TRAJECTORY_POINTS = {'with accelerations': 400, 'without': 1500}
 MAX_TRAJECTORY_BYTES = 1 << 20
 REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second, with a count
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
-# s: the longest a stopping controller waits for its last command (0 V) to be acknowledged
-SHUTDOWN_ACK_WAIT = 0.2
+# s of wall time the sim clock (hardware sim, use_sim_time) ticks before it runs the callbacks
+SIM_BATCH = 0.001
+# s of wall time a state stream goes on from its last look at its readers (a reader that joins
+# misses at most this much; looking costs ~3 µs a stream a tick)
+READERS_REFRESH = 0.05
 
 
 class ControllerNode(ros_params.RegisterNode):
     NODE_NAME = 'controller'
 
-    def __init__(self, **kwargs):
+    ALSO_SECTIONS = ('plant',)        # params-file sections read besides its own (sim)
+
+    def __init__(self, params_files=(), **kwargs):
+        """`params_files`: those of the command line (run passes them): with `hardware: sim`
+        their `plant:` sections configure the simulated slides too."""
         # The worker threads' queues first: destroy_node ends the threads through them, also
         # for a node refused half-made (a bad parameter), which the context's cleanup destroys.
         self.trajectories: queue.SimpleQueue = queue.SimpleQueue()     # raw messages in
@@ -100,24 +122,26 @@ class ControllerNode(ros_params.RegisterNode):
         for name in self.axis_names:
             self.values[name] = {r.name: ros_params.declare(self, r, f'{name}.{r.name}')
                                  for r in AXIS_REGISTERS}
+        self.hardware_kind = g['hardware']
+        hw_values = self._declare_hardware(params_files)
         self.refuse_unknown_overrides()
         for name, values in self.values.items():
             self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see run()
         self.sim_time = self.get_parameter('use_sim_time').value
+        self.hardware = self._make_hardware(hw_values)
+        self.hardware.configure()          # raises HardwareError: one line, exit 2 (run)
         self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
-                              self.sim_time)
+                              self.sim_time, self.hardware)
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._stage)
-        self.joints = [(a, md.motor_joint(a), md.load_joint(a)) for a in self.axis_names]
 
-        self.pub_command = self.stream(JointState, md.COMMAND)
-        self.pub_joint = self.stream(JointState, md.JOINT_STATES)
-        self.pub_reference = self.stream(JointState, md.REFERENCE_STATES)
-        self.pub_motor = self.stream(JointState, md.MOTOR_STATES)
+        self.pub_joint = self.stream(JointState, md.JOINT_STATES, refresh=READERS_REFRESH)
+        self.pub_reference = self.stream(JointState, md.REFERENCE_STATES,
+                                         refresh=READERS_REFRESH)
+        self.pub_motor = self.stream(JointState, md.MOTOR_STATES, refresh=READERS_REFRESH)
         self.pub_status = {a: self.stream(UInt32, md.status_topic(a), md.STATUS_QOS)
                            for a in self.axis_names}
         self.pub_diag = self.stream(DiagnosticArray, md.DIAGNOSTICS, 10)
-        self.create_subscription(JointState, md.ENCODERS, self._on_encoders, md.SERVO_READ_QOS)
         self.create_subscription(JointState, md.TARGET_POSITION, self._raw_target(
             self._on_target_position, 'target_position'), 10, raw=True)
         self.create_subscription(JointState, md.TARGET_VELOCITY, self._raw_target(
@@ -147,28 +171,91 @@ class ControllerNode(ros_params.RegisterNode):
         self.last_status_time = {a: -math.inf for a in self.axis_names}
         self.stats = self.loop.stats
         self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
-        # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
-        self.timer = None if self.sim_time else self.create_timer(self.period,
-                                                                  lambda: self._tick())
-        # Real time: the servo ticks are moved to just after the encoder samples arrive.
-        self.sync = None if self.sim_time else FeedbackSync(self.period)
-        self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        # What drives the tick: a timer in real time; in sim time the plant's samples
+        # (topics) or this node's own clock (sim: spin_step).
+        self.timer = None
+        self.sync = None
+        self.sim_clock = self.sim_time and self.hardware_kind == 'sim'
+        if not self.sim_time:
+            # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
+            self.timer = self.create_timer(self.period, lambda: self._tick())
+        if not self.sim_time and self.hardware_kind == 'topics':
+            # Real time: the servo ticks are moved to just after the encoder samples arrive.
+            self.sync = FeedbackSync(self.period)
+        if self.sim_clock:
+            self._start_sim_clock()
+        else:
+            self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self.hardware.activate()
         self.get_logger().info(
-            f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}')
+            f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}, hardware '
+            f'{self.hardware_kind}' + (' (the clock: sim time)' if self.sim_clock else ''))
+
+    # -- hardware -------------------------------------------------------------------------------
+    def _declare_hardware(self, params_files) -> dict:
+        """The chosen backend's own registers (registers.HARDWARE_REGISTERS), declared now:
+        {None: controller-wide values, axis: that axis's values}. With `hardware: sim` the
+        `plant:` sections of the params files give the plant registers' start values (this
+        node's own section and -p win); with another backend such a section is refused."""
+        kind = self.hardware_kind
+        plant_section = ros_params.section_values(params_files, 'plant')
+        if plant_section and kind != 'sim':
+            raise ValueError(f'hardware: {kind}: a plant: section in the params files '
+                             f'configures the controller only with hardware: sim')
+        globals_, per_axis = HARDWARE_REGISTERS[kind]
+        self.globals_table = CONTROLLER_GLOBAL | {r.name: r for r in globals_}
+        self.axis_table = CONTROLLER_AXIS | {r.name: r for r in per_axis}
+        values: dict = {None: {r.name: ros_params.declare(self, r, r.name,
+                                                          plant_section.get(r.name))
+                               for r in globals_}}
+        for a in self.axis_names:
+            values[a] = {r.name: ros_params.declare(self, r, f'{a}.{r.name}',
+                                                    plant_section.get(f'{a}.{r.name}'))
+                         for r in per_axis}
+        self.hardware_values = values
+        return values
+
+    def _make_hardware(self, values: dict):
+        if self.hardware_kind == 'sim':
+            self.consistency = self._sim_consistency
+            hardware = SimHardware(self.axis_names, self.period,
+                                   {a: values[a] for a in self.axis_names},
+                                   substep_rate=values[None]['substep_rate'])
+            self.plant_states = PlantStates(self, self.axis_names, {
+                a: values[a]['command_timeout'] for a in self.axis_names}, READERS_REFRESH)
+            return hardware
+        return TopicsHardware(self, self.axis_names, on_sample=self._on_sample)
+
+    def _sim_consistency(self, values: dict) -> list[str]:
+        """The controller's cross-register rules and the plant's, each on its own registers."""
+        plant = {k: v for k, v in values.items() if k in PLANT_AXIS}
+        own = {k: v for k, v in values.items() if k not in PLANT_AXIS}
+        return consistency(own) + (plant_consistency(plant) if plant else [])
 
     # -- parameters -----------------------------------------------------------------------------
     def current(self, axis: str) -> dict:
-        return self.loop.current(axis)
+        own = self.loop.current(axis)
+        if self.hardware_kind == 'sim':
+            return own | self.hardware.plants[axis].params
+        return own
 
     def live_refusal(self, axis: str, changes: dict):
-        return self.axes[axis].live_change_refusal(changes)
+        return self.axes[axis].live_change_refusal(
+            {k: v for k, v in changes.items() if k not in PLANT_AXIS})
 
     def _stage(self, params) -> None:
         for p in params:
             if p.name == 'feedback_timeout':
                 self.loop.feedback_timeout = p.value
         for axis, changes in self.axis_changes(params).items():
-            self.loop.stage(axis, changes)
+            plant = {k: v for k, v in changes.items() if k in PLANT_AXIS}
+            if plant:                 # (hardware sim: validated above, applied between ticks)
+                self.hardware.configure_plant(axis, plant)
+                self.plant_states.command_timeout[axis] = \
+                    self.hardware.plants[axis].params['command_timeout']
+                changes = {k: v for k, v in changes.items() if k not in PLANT_AXIS}
+            if changes:
+                self.loop.stage(axis, changes)
 
     def _log(self, lines) -> None:
         logger = self.get_logger()
@@ -179,25 +266,20 @@ class ControllerNode(ros_params.RegisterNode):
                 logger.warning(text)
 
     # -- inputs ---------------------------------------------------------------------------------
-    def _on_encoders(self, msg: JointState) -> None:
-        try:
-            counts = md.read_joint_state(msg, 'position')
-        except md.MalformedMessage as e:
-            self.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
-            return
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        for a, motor, load in self.joints:
-            m, l = counts.get(motor), counts.get(load)
-            if m is not None and l is not None:
-                self.loop.feedback(a, int(m), int(l), stamp)
+    def _on_sample(self, stamp) -> None:
+        """An encoder message was taken (hardware topics): the servo timer's phase follows the
+        arrivals (real time); in sim time each new sample is one tick, and a sample sent again
+        (the lockstep plant did not get our answer) is answered again."""
         if self.sync is not None:
             self.sync.arrived(time.perf_counter())     # ready for a tick from now on
+        if not self.sim_time:
+            return
         last = self.loop.last_tick
-        if self.sim_time and (last is None or stamp > last):
-            self._tick(msg.header.stamp)
-        elif self.sim_time and stamp == last and self.pub_command.names:
-            # The lockstep plant sent this sample again: our answer did not reach it.
-            self.pub_command.send(self.pub_command.msg)
+        now = seconds_of(stamp)
+        if last is None or now > last:
+            self._tick(stamp)
+        elif now == last:
+            self.hardware.resend()
 
     def _refused(self, kind: str, text: str) -> None:
         """A refusal logged at most once per REFUSAL_LOG_PERIOD per kind, with how many like it
@@ -322,7 +404,8 @@ class ControllerNode(ros_params.RegisterNode):
         self.create_service(Trigger, md.service_name(a, 'estop'),
                             trigger(lambda: axis.stop('estop')))
         self.create_service(Trigger, md.service_name(a, 'abort'), trigger(axis.abort))
-        self.create_service(Trigger, md.service_name(a, 'reset'), trigger(axis.reset))
+        self.create_service(Trigger, md.service_name(a, 'reset'),
+                            trigger(lambda: self.loop.reset(a)))
         self.create_service(Trigger, md.service_name(a, 'correct'), trigger(axis.correct))
         self.create_service(Trigger, md.service_name(a, 'excite'),
                             trigger(lambda: self._excite(a)))
@@ -357,57 +440,94 @@ class ControllerNode(ros_params.RegisterNode):
 
     # -- the servo tick -------------------------------------------------------------------------
     def _tick(self, stamp_msg=None) -> None:
-        """One servo tick: at the timer (real time) or at an encoder sample (sim time)."""
+        """One servo cycle: at the timer (real time), at an encoder sample (sim time, topics)
+        or at this node's own sim clock (sim time, sim)."""
         t_start = time.perf_counter()
         if stamp_msg is None:
             stamp = self.get_clock().now().to_msg()
-            period = self.sync.tick(t_start)
-            if period is not None:
-                self.timer.timer_period_ns = round(period * 1e9)
+            if self.sync is not None:
+                period = self.sync.tick(t_start)
+                if period is not None:
+                    self.timer.timer_period_ns = round(period * 1e9)
         else:
             stamp = stamp_msg
-        now = stamp.sec + stamp.nanosec * 1e-9
+        now = seconds_of(stamp)
         while not self.prepared.empty():
             self._start_trajectory(*self.prepared.get_nowait())
-        tick = self.loop.tick(now)
+        tick = self.loop.cycle(now)
         if tick is None:
             return                       # sim time paused or stepped back
-        self._log(tick.log)
+        if tick.log:
+            self._log(tick.log)
         names, outputs = tick.names, tick.outputs
         if names:
-            self.pub_command.publish(stamp, names, effort=outputs)
             ax = [self.axes[a] for a in names]
-            self.pub_joint.publish(stamp, names, [x.load_pos for x in ax],
-                                   [x.load_vel for x in ax], outputs)
-            self.pub_reference.publish(stamp, names, [x.command_position for x in ax],
-                                       [x.profile.velocity for x in ax])
-            self.pub_motor.publish(stamp, names, [x.motor_pos for x in ax],
-                                   [x.motor_vel for x in ax])
+            if self.pub_joint.wanted():
+                self.pub_joint.publish(stamp, names, [x.load_pos for x in ax],
+                                       [x.load_vel for x in ax], outputs)
+            if self.pub_reference.wanted():
+                self.pub_reference.publish(stamp, names, [x.command_position for x in ax],
+                                           [x.profile.velocity for x in ax])
+            if self.pub_motor.wanted():
+                self.pub_motor.publish(stamp, names, [x.motor_pos for x in ax],
+                                       [x.motor_vel for x in ax])
+        if self.hardware_kind == 'sim':
+            self.plant_states.publish(stamp_of(self.hardware.time), self.hardware)
         for a, axis in self.axes.items():
             g = axis.gather
             if g is not None and g.ended is not None and a in self.run_meta:
                 self.gathers.put((a, g, self.run_meta.pop(a)))    # published off the tick
-            s = int(axis.status)
+            s = axis.word
             if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
                 self.pub_status[a].send(UInt32(data=s))
                 self.last_status[a] = s
                 self.last_status_time[a] = now
         self.stats.work(time.perf_counter() - t_start)
 
+    # -- the sim clock (hardware sim, use_sim_time) ---------------------------------------------
+    def _start_sim_clock(self) -> None:
+        """This node is the clock: it publishes /clock and sets its own clock to the servo
+        ticks' time (it does not read /clock, which it would only hear from itself)."""
+        self.pub_clock = self.create_publisher(ClockMsg, md.CLOCK, 10)
+        self.sim_ns = 0
+        self.period_ns = round(self.period * 1e9)
+        self.next_diagnostics_ns = 1_000_000_000
+        self._time_source.detach_node()
+        self._time_source.clock_callback(ClockMsg())
+
+    def spin_step(self, executor) -> None:
+        """What `spin` runs over and over: in real time, the executor (timer, callbacks); with
+        the sim clock, servo ticks back to back for SIM_BATCH s of wall time, then /clock (the
+        time of the last tick: ~1 kHz of wall time, as a simulator publishes it; one message
+        per tick would cost every reader of /clock more than the tick itself) and the
+        callbacks that came meanwhile."""
+        if not self.sim_clock:
+            executor.spin_once(timeout_sec=0.05)
+            return
+        end = time.perf_counter() + SIM_BATCH
+        while True:
+            self._tick(stamp_of(self.sim_ns * 1e-9))
+            if self.sim_ns >= self.next_diagnostics_ns:
+                self.next_diagnostics_ns += 1_000_000_000
+                self._publish_diagnostics()
+            self.sim_ns += self.period_ns
+            if time.perf_counter() >= end:
+                break
+        clock = ClockMsg(clock=stamp_of((self.sim_ns - self.period_ns) * 1e-9))
+        self.pub_clock.publish(clock)
+        self._time_source.clock_callback(clock)
+        executor.spin_once(timeout_sec=0.0)
+
     def shutdown_outputs(self) -> None:
         """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V
         commanded on every axis, as a PMAC or Galil kills its motors (amplifier disabled, output
         0) when it stops, instead of leaving the amplifier on its last command until the
-        amplifier's own watchdog trips. The command stream is reliable: waiting (bounded) for the
-        readers' acknowledgement keeps the participant alive until the message has left; a
-        best-effort reader (the plant) got it in the synchronous publish already."""
-        stamp = self.get_clock().now().to_msg()
+        amplifier's own watchdog trips (the hardware's `deactivate`)."""
         for axis in self.axes.values():
             axis.enable(False)
-        self.pub_command.publish(stamp, self.axis_names, effort=[0.0] * len(self.axis_names))
+        self.hardware.deactivate()
         for a, axis in self.axes.items():
             self.pub_status[a].send(UInt32(data=int(axis.status)))
-        self.pub_command.publisher.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_WAIT))
         self.get_logger().info(f'stopped: loops opened, 0 V commanded on {self.axis_names}')
 
     def destroy_node(self) -> None:
@@ -441,9 +561,13 @@ def spin(node) -> None:
     gc.freeze()
     stop_on_signals(node.get_name())
     pet = 0.0
+    step = getattr(node, 'spin_step', None)
     try:
         while _RUNNING and rclpy.ok():
-            executor.spin_once(timeout_sec=0.05)
+            if step is None:
+                executor.spin_once(timeout_sec=0.05)
+            else:
+                step(executor)
             now = time.monotonic()
             if now >= pet:
                 # The process watchdog (PMAC's watchdog timer): a loop stuck WATCHDOG s ends the
@@ -511,15 +635,17 @@ def run(node_class, args=None) -> int:
               f'{ros_params.yaml_bool_hint(str(e))}', file=sys.stderr)
         return 2
     argv = list(args or sys.argv)
-    refusal = ros_params.params_files_refusal(node_class.NODE_NAME, argv)
+    refusal = ros_params.params_files_refusal(node_class.NODE_NAME, argv,
+                                              getattr(node_class, 'ALSO_SECTIONS', ()))
     if refusal:
         print(f'{node_class.__name__}: {refusal}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     try:
-        node = node_class()
+        node = node_class(**({'params_files': ros_params.params_files(argv)}
+                             if getattr(node_class, 'ALSO_SECTIONS', ()) else {}))
     except (InvalidParameterValueException, InvalidParameterTypeException,
-            ParameterException, ValueError) as e:
+            ParameterException, ValueError, HardwareError) as e:
         # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
         # <name>"; the reason names the parameter too.
         msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__

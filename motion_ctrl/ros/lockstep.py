@@ -1,18 +1,28 @@
-"""Run a move in the deterministic lockstep simulation and collect the plant's ground truth.
+"""The deterministic lockstep simulation: start it, and run a move in it collecting the plant's
+ground truth.
 
-Plant (`lockstep: 1`, the clock) and controller (`use_sim_time: true`, ticking on encoder
-samples) as two processes. The target is stamped with the sim time at which it must start and
-published well before that time, so the move begins on the same tick in every run, and the
-whole run is bit-identical. Used by the lockstep test and the benchmark.
+Two forms:
+
+* `hardware: sim` (the default here): the controller alone, with the slide simulated inside its
+  loop and its own sim clock (`use_sim_time: true`): it ticks back to back as fast as the machine
+  allows and publishes `/clock`.
+* `hardware: topics`: plant (`lockstep: 1`, the clock) and controller (`use_sim_time: true`,
+  ticking on encoder samples) as two processes exchanging `encoders` and `command` over DDS.
+
+The target is stamped with the sim time at which it must start and published well before that
+time, so the move begins on the same tick in every run, and the whole run is bit-identical. Used
+by the tools' `--lockstep`, the lockstep tests and the benchmark.
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 
 import msg_defs as md
@@ -49,21 +59,32 @@ def client_context(domain: int):
 
 
 def start_slide(controller_params: dict | None = None, plant_params: dict | None = None,
-                log_dir=None, env: dict | None = None):
-    """Plant (the clock) and controller (on its sim time) as two processes (processes.start_slide
-    with the lockstep overrides, node_env); returns (plant, controller). The sim runs as soon
-    as they have found each other: the plant resends its sample until answered."""
+                log_dir=None, env: dict | None = None, hardware: str = 'sim'):
+    """The lockstep simulation's processes, to stop when done: with `hardware` sim the
+    controller alone, the clock (processes.start_sim with the lockstep overrides), whose sim
+    runs from its start; with topics plant (the clock) and controller (on its sim time)
+    (processes.start_slide), whose sim runs as soon as they have found each other (the plant
+    resends its sample until answered)."""
+    if hardware == 'sim':
+        return processes.start_sim((controller_params or {}) | CONTROLLER, plant_params,
+                                   log_dir, env=node_env(env))
     return processes.start_slide((controller_params or {}) | CONTROLLER,
                                  (plant_params or {}) | PLANT, log_dir, env=node_env(env))
 
 
-def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
-                 timeout: float = 60.0, log_dir=None):
-    """Returns ({stamp_ns: (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second).
+def run_lockstep(target: float = 0.0254, start: float = 20.0, duration: float = 2.0,
+                 timeout: float = 60.0, log_dir=None, hardware: str = 'topics'):
+    """A move to `target` in the lockstep simulation. Returns ({ns from the move's start:
+    (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second), the slide's truth from
+    the move's start to `duration` s after it.
 
-    The move starts at sim time `start`. The observer may find the plant late (a missed
-    discovery announcement is repeated after 3 s, ~10 s of sim time): keep `start` well after
-    that; the samples before it show the slide at rest.
+    With `hardware` topics the move starts at sim time `start`: the controller starts first
+    and its clock stands at 0 until the plant comes, so the target is stamped `start` (the
+    observer may find the plant late, a missed discovery announcement being repeated after
+    3 s, ~10 s of sim time: keep `start` well after that). With `hardware` sim the controller
+    is the clock and runs from its start: the move starts `start` s of sim time after its clock
+    as this observer first reads it, at a whole second. Either way the slide rests until then
+    and the move is the same, tick for tick.
     """
     d = params_dir()
     domain = ros_env.spare_domain()
@@ -81,6 +102,8 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
                              lambda b: raw.append((time.monotonic(), b)),
                              QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE),
                              raw=True)   # deep: a slow reader must not lose samples
+    clock: list = []
+    node.create_subscription(ClockMsg, md.CLOCK, lambda m: clock.append(m.clock), 10)
 
     def sim_time() -> float:
         if not raw:
@@ -102,28 +125,33 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
         spin_until(lambda: False, seconds)     # the time is the point: no condition to meet
 
     plant = None
-    # The controller first, and its target: with no encoder sample it does not tick, and its
-    # sim clock stands at 0, so a target stamped `start` is scheduled for that sim time. Then
-    # the plant: the sim runs as soon as plant and controller have found each other (the
-    # plant resends t = 0 until then); this observer usually sees it from the first samples.
-    controller = NodeProcess('controller_node', d / 'controller.yaml', CONTROLLER,
-                             log_file(log_dir, 'controller'), env=env)
+    sim = hardware == 'sim'
+    controller = NodeProcess('controller_node', [d / 'controller.yaml'] + (
+        [d / 'plant.yaml'] if sim else []), CONTROLLER | ({'hardware': 'sim'} if sim else {}),
+        log_file(log_dir, 'controller'), env=env)
     try:
         if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
             raise RuntimeError('controller not discovered')
         spin_for(0.5)                      # the controller's side of the match, too
+        if sim:
+            if not spin_until(lambda: clock, 30.0):
+                raise RuntimeError('no /clock from the controller')
+            start = math.ceil(clock[-1].sec + clock[-1].nanosec * 1e-9 + start)
         stamp = JointState().header.stamp
         stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
         pub_target.publish(md.joint_state(stamp, ['x'], [target]))
         spin_for(0.2)
-        plant = NodeProcess('plant_node', d / 'plant.yaml', PLANT, log_file(log_dir, 'plant'),
-                            env=env)
+        if not sim:
+            plant = NodeProcess('plant_node', d / 'plant.yaml', PLANT,
+                                log_file(log_dir, 'plant'), env=env)
         if not spin_until(lambda: raw, 30.0):
-            raise RuntimeError('lockstep plant not discovered')
+            raise RuntimeError('plant_states not seen')
+        end = start + duration
         if not spin_until(lambda: sim_time() >= end, timeout):
             raise RuntimeError(
                 f'lockstep did not reach {end} s of sim time: stopped at {sim_time()} s; '
-                f'plant exit {plant.proc.poll()}, controller exit {controller.proc.poll()}')
+                f'plant exit {None if plant is None else plant.proc.poll()}, controller exit '
+                f'{controller.proc.poll()}')
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -132,10 +160,12 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
                 n.stop()
         context.try_shutdown()
     truth, moving = {}, []
+    start_ns = round(start * 1e9)
     for wall, b in raw:
         msg = deserialize_message(b, JointState)
         t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        truth[t_ns] = tuple(msg.position) + tuple(msg.velocity)
+        if 0 <= t_ns - start_ns <= duration * 1e9:
+            truth[t_ns - start_ns] = tuple(msg.position) + tuple(msg.velocity)
         if t_ns > 0:
             moving.append((wall, t_ns * 1e-9))
     speed = ((moving[-1][1] - moving[0][1]) / (moving[-1][0] - moving[0][0])
@@ -143,5 +173,5 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, end: float = 22.0,
     return truth, speed
 
 
-def bench_lockstep() -> float:
-    return run_lockstep()[1]
+def bench_lockstep(hardware: str = 'topics') -> float:
+    return run_lockstep(hardware=hardware)[1]

@@ -6,7 +6,8 @@ the real elapsed time on every tick of its own timer, and publishes `encoders` (
 (`SlidePlant.advance`): after `<axis>.command_timeout` of plant time without a command its output
 is 0 V and its dynamic brake closes; `<axis>/amplifier_fault` (std_msgs/Bool, latched) says so,
 and the log says it once on the trip and once when commands come again. `amplifier_states` carries
-the output each amplifier applied (effort [V]).
+the output each amplifier applied (effort [V]) (motion_ctrl.ros.plant_states, shared with a
+controller that runs the slide in its own loop, `hardware: sim`).
 
 Lockstep (`lockstep: 1`): the plant is the clock. It publishes `/clock`, `encoders` and
 `plant_states` at sim time t, waits for the controller's command stamped t (the controller,
@@ -25,16 +26,15 @@ from rclpy.clock import Clock, ClockType
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
 
 import msg_defs as md
 from motion_ctrl.ros import ros_params
 from motion_ctrl.ros.controller_node import run
+from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.sim.plant import SlidePlant
 from motion_ctrl.core.registers import (PLANT_AXIS, PLANT_GLOBALS, PLANT_PARAMETERS,
                                         plant_consistency)
 
-FAULT_PERIOD = 0.1       # s: amplifier_fault is re-published at least at 10 Hz (as status words)
 LOCKSTEP_RESEND = 0.05   # s of wall time without progress before the sample is sent again
 
 
@@ -58,12 +58,8 @@ class PlantNode(ros_params.RegisterNode):
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
         self.pub_enc = self.stream(JointState, md.ENCODERS)
-        self.pub_truth = self.stream(JointState, md.PLANT_STATES)
-        self.pub_amp = self.stream(JointState, md.AMPLIFIER_STATES)
-        self.pub_fault = {a: self.stream(Bool, md.amplifier_fault_topic(a), md.STATUS_QOS)
-                          for a in self.axis_names}
-        self.fault = {a: None for a in self.axis_names}      # last published, and when
-        self.fault_time = {a: -1.0 for a in self.axis_names}
+        self.states = PlantStates(self, self.axis_names, {
+            a: p.params['command_timeout'] for a, p in self.plants.items()})
         self.create_subscription(JointState, md.COMMAND, self._on_command, md.SERVO_READ_QOS)
         self.last = None
         if self.lockstep:
@@ -87,6 +83,7 @@ class PlantNode(ros_params.RegisterNode):
     def _apply(self, params):
         for axis, ch in self.axis_changes(params).items():
             self.plants[axis].configure(**ch)
+            self.states.command_timeout[axis] = self.plants[axis].params['command_timeout']
 
     def _on_command(self, msg: JointState) -> None:
         try:
@@ -135,39 +132,29 @@ class PlantNode(ros_params.RegisterNode):
     def publish(self, stamp, then=None) -> None:
         """encoders first (the controller's next tick waits on them), then `then()` and the
         ground truth."""
-        names, counts, tpos, tvel, volts = [], [], [], [], []
+        names, counts = [], []
         for a, plant in self.plants.items():
-            volts.append(plant.volts)
             m, l = plant.encoder_counts()
             names += [md.motor_joint(a), md.load_joint(a)]
             counts += [m, l]
-            tpos += [plant.x_m, plant.x_l]
-            tvel += [plant.v_m, plant.v_l]
         self.pub_enc.publish(stamp, names, counts)
         if then is not None:
             then()
-        self.pub_truth.publish(stamp, names, tpos, tvel)
-        self.pub_amp.publish(stamp, self.axis_names, effort=volts)
-        self._report_faults(stamp.sec + stamp.nanosec * 1e-9)
+        self.states.publish(stamp, self)
 
-    def _report_faults(self, now: float) -> None:
-        """`<axis>/amplifier_fault` on every change and at least at 10 Hz; a log line on a
-        trip and on the recovery (not at start-up, before the first command)."""
-        for a, plant in self.plants.items():
-            tripped = plant.tripped
-            last = self.fault[a]
-            if tripped == last and now - self.fault_time[a] < FAULT_PERIOD:
-                continue
-            if last is not None and tripped != last:
-                timeout = plant.params['command_timeout']
-                if tripped:
-                    self.get_logger().warning(
-                        f'{a}: amplifier fault: no command for {timeout * 1e3:g} ms '
-                        f'(command_timeout): output 0 V, dynamic brake on')
-                else:
-                    self.get_logger().info(f'{a}: amplifier: commands arriving, output on')
-            self.pub_fault[a].send(Bool(data=tripped))
-            self.fault[a], self.fault_time[a] = tripped, now
+    # -- what PlantStates publishes ------------------------------------------------------------
+    def truth(self) -> tuple[list[float], list[float]]:
+        pos, vel = [], []
+        for plant in self.plants.values():
+            pos += [plant.x_m, plant.x_l]
+            vel += [plant.v_m, plant.v_l]
+        return pos, vel
+
+    def applied(self) -> list[float]:
+        return [plant.volts for plant in self.plants.values()]
+
+    def tripped(self) -> list[bool]:
+        return [plant.tripped for plant in self.plants.values()]
 
 
 def main(args=None):

@@ -53,9 +53,12 @@ class NodeProcess:
 
     def __init__(self, module: str, params_file=None, params: dict | None = None,
                  log_path=None, env=None):
+        """`params_file`: a file, a list of them (applied in order) or None."""
         args = [sys.executable, '-m', f'motion_ctrl.ros.{module}', '--ros-args']
-        if params_file:
-            args += ['--params-file', str(params_file)]
+        files = params_file if isinstance(params_file, (list, tuple)) else [params_file]
+        for f in files:
+            if f:
+                args += ['--params-file', str(f)]
         for k, v in (params or {}).items():
             args += ['-p', f'{k}:={v}']
         self.args = args
@@ -114,3 +117,23 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
     controller = NodeProcess('controller_node', file('controller'), controller_params,
                              log_file(log_dir, 'controller'), env=env)
     return plant, controller
+
+
+# The plant node's own parameters that mean nothing to a controller running the slide itself.
+PLANT_NODE_ONLY = ('axes', 'publish_rate', 'lockstep', 'realtime_priority')
+
+
+def start_sim(controller_params: dict | None = None, plant_params: dict | None = None,
+              log_dir=None, params_files: bool = True, env: dict | None = None):
+    """The controller alone, with the slide simulated inside its loop (`hardware: sim`): the
+    default params files of both nodes (the plant's `plant:` section configures its slides;
+    params_files=False: the register table's defaults) plus overrides, the plant's as the
+    controller's own parameters (start_slide's plant parameters, those of the plant node alone
+    dropped). Returns (controller,), the processes to stop."""
+    d = params_dir()
+    files = [d / 'controller.yaml', d / 'plant.yaml'] if params_files else None
+    plant = {k: v for k, v in (plant_params or {}).items() if k not in PLANT_NODE_ONLY}
+    controller = NodeProcess('controller_node', files,
+                             (controller_params or {}) | plant | {'hardware': 'sim'},
+                             log_file(log_dir, 'controller'), env=env)
+    return (controller,)

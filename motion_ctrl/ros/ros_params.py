@@ -41,14 +41,15 @@ def descriptor(reg, full_name: str) -> ParameterDescriptor:
     return d
 
 
-def declare(node, reg, full_name: str):
+def declare(node, reg, full_name: str, default=None):
     """Declare one register; returns its value (overrides from YAML / command line applied).
+    `default`: the value without an override, when not the register's own default.
 
     Empty arrays are declared statically typed (an empty list would otherwise become a byte
     array in rclpy and refuse doubles later).
     """
     desc = descriptor(reg, full_name)
-    value = reg.default
+    value = reg.default if default is None else default
     if isinstance(value, list) and not value:
         p = node.declare_parameter(full_name, _TYPES[reg.type][1], desc)
         if p.type_ == Parameter.Type.NOT_SET:
@@ -90,6 +91,33 @@ def name_type_refusal(node, params, result):
     return result
 
 
+def params_files(args: list[str]) -> list[str]:
+    """The files of `--params-file` in a command line."""
+    return _params_files(args)
+
+
+def section_values(files, node_name: str) -> dict:
+    """{parameter: value} of the `ros__parameters` of the sections that name node `node_name`
+    itself (`plant:`, `/plant:`, `/**/plant:`; not the wildcards, which rcl applies to every node
+    anyway) in the params files `files`, a later file winning. A file rcl or YAML cannot read is
+    left to rcl, which refuses it."""
+    import yaml
+    values: dict = {}
+    for f in files:
+        try:
+            with open(f) as fh:
+                data = yaml.safe_load(fh)
+        except (OSError, yaml.YAMLError):
+            continue
+        if not isinstance(data, dict):
+            continue
+        for key, section in data.items():
+            if (str(key).rstrip('/').split('/')[-1] == node_name and isinstance(section, dict)
+                    and isinstance(section.get('ros__parameters'), dict)):
+                values |= section['ros__parameters']
+    return values
+
+
 def _params_files(args: list[str]) -> list[str]:
     return [b for a, b in zip(args, args[1:]) if a == '--params-file']
 
@@ -101,10 +129,12 @@ def _applies(key: str, node_name: str) -> bool:
     return last in (node_name, '*', '**')
 
 
-def params_files_refusal(node_name: str, args: list[str]):
+def params_files_refusal(node_name: str, args: list[str], also=()):
     """Why the params files given with --params-file cannot configure this node, or None: an
     empty file, or one with no section for it (`ctrl:` for `controller:`), would run the node
-    on its defaults without a word. (A file rcl cannot parse is refused by rcl first.)"""
+    on its defaults without a word. (A file rcl cannot parse is refused by rcl first.) `also`:
+    other nodes whose sections this node reads too (the controller: `plant`, for `hardware:
+    sim`)."""
     import yaml
     for a, b in zip(args, args[1:]):            # launch_ros names nodes with -r __node:=...
         if a in ('-r', '--remap') and b.split(':=', 1)[0] in ('__node', '__name'):
@@ -119,8 +149,8 @@ def params_files_refusal(node_name: str, args: list[str]):
             return f'{f} is empty: it configures nothing'
         if not isinstance(data, dict):
             return f'{f} is not a params file (node name: ros__parameters: ...)'
-        if not any(_applies(k, node_name) and isinstance(v, dict) and 'ros__parameters' in v
-                   for k, v in data.items()):
+        if not any((_applies(k, node_name) or str(k).rstrip('/').split('/')[-1] in also)
+                   and isinstance(v, dict) and 'ros__parameters' in v for k, v in data.items()):
             return (f'{f} configures nothing for node {node_name!r} (its sections: '
                     f'{", ".join(map(str, data))}); expected {node_name}: ros__parameters: ...')
     return None
@@ -155,14 +185,14 @@ class RegisterNode(Node):
     def current(self, axis: str) -> dict:
         raise NotImplementedError
 
-    def stream(self, msg_type, topic: str, qos=None):
+    def stream(self, msg_type, topic: str, qos=None, refresh: float = 0.0):
         """A publisher (servo QoS unless given) whose refused publishes are counted and logged,
-        not raised (msg_defs.Stream; JointStateStream for JointState)."""
+        not raised (msg_defs.Stream; JointStateStream for JointState); `refresh`: Stream's."""
         import msg_defs as md
         from sensor_msgs.msg import JointState
         pub = self.create_publisher(msg_type, topic, md.SERVO_QOS if qos is None else qos)
         return (md.JointStateStream if msg_type is JointState else md.Stream)(
-            pub, self._publish_refused)
+            pub, self._publish_refused, refresh)
 
     def _publish_refused(self, topic: str, error: Exception) -> None:
         self.get_logger().warning(f'{topic}: publish refused ({error}); the node runs on',

@@ -56,7 +56,7 @@ class SimHardware(HardwareInterface):
             try:
                 plants[a] = SlidePlant(substep_rate=self.substep_rate, **self.params[a])
             except ValueError as e:
-                raise HardwareError(f'sim: axis {a}: {e}') from None
+                raise HardwareError(f'sim: {a}.{e}') from None
         self.plants = plants
         self._slides = list(plants.items())
         self._delay = {a: deque([0.0] * self.latency_ticks) for a in self.axes}
