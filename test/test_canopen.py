@@ -36,7 +36,7 @@ class Bench:
         self.hw = CanopenHardware(
             {a: nodes.get(a, AxisNodes(d.node_id, d.load_encoder_node_id))
              for a, d in drives.items()}, self.T, 'virtual', self.channel,
-            log=lambda level, text: self.log.append((level, text)))
+            log=lambda level, text: self.log.append((level, text)), boot_timeout=0.5)
         self.axes = {a: Axis(a) for a in drives}
         self.loop = ServoLoop(self.axes, {a: x.r for a, x in self.axes.items()}, self.T, 0.02,
                               sim_time=True, hardware=self.hw)
@@ -252,7 +252,7 @@ def test_a_missing_drive_is_a_missing_sample_then_a_feedback_fault(benches):
 
 @pytest.mark.parametrize('drive, nodes, line', [
     (None, None, 'canopen: node 1 (x drive) does not answer: no SDO response to 1000h '
-                 '(device type) in 0.3 s'),
+                 '(device type) in 0.3 s, nor in the 0.5 s a node may take to boot'),
     (DriveConfig(1, device_type=0x00020196), None,
      'canopen: node 1 (x drive) is no CiA 402 drive: 1000h (device type) = 0x00020196, '
      'profile 406'),
@@ -264,7 +264,7 @@ def test_a_missing_drive_is_a_missing_sample_then_a_feedback_fault(benches):
      'modes) = 0x00000080 (cyclic synchronous position)'),
     (DriveConfig(1, load_encoder_node_id=5), {'x': AxisNodes(1, 6)},
      'canopen: node 6 (x load encoder) does not answer: no SDO response to 1000h (device '
-     'type) in 0.3 s'),
+     'type) in 0.3 s, nor in the 0.5 s a node may take to boot'),
 ])
 def test_start_up_refuses_what_it_cannot_drive_in_one_line(benches, drive, nodes, line):
     b = benches({'x': drive or DriveConfig(1)}, start_drives=drive is not None,

@@ -37,6 +37,7 @@ PRE-OPERATIONAL.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import threading
 import time
@@ -55,6 +56,7 @@ HEARTBEAT_MS = 100              # 1017h written to every node
 HEARTBEAT_LOST = 2.5            # heartbeat periods without one: the node is lost (CiA 301
                                 # consumer time ≥ producer time; 2.5 rides out one lost frame)
 SDO_TIMEOUT = 0.3               # s for an SDO answer (canopen's default)
+BOOT_TIMEOUT = 5.0              # s a node may take to answer its first SDO (it may be booting)
 ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
 NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
@@ -112,8 +114,10 @@ class CanopenHardware(HardwareInterface):
 
     def __init__(self, axes: dict[str, AxisNodes], period: float, interface: str,
                  channel: str, bitrate: int = 1_000_000,
-                 log: Callable[[str, str], None] | None = None) -> None:
+                 log: Callable[[str, str], None] | None = None,
+                 boot_timeout: float = BOOT_TIMEOUT) -> None:
         super().__init__(list(axes))
+        self.boot_timeout = boot_timeout
         self.period = period
         self.bus_args = {'interface': interface, 'channel': channel, 'bitrate': bitrate}
         self.bitrate = bitrate
@@ -131,6 +135,8 @@ class CanopenHardware(HardwareInterface):
         self.missed = 0
         self.cycles = 0
         self._started = 0.0
+        self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
+        self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
 
     # -- the bus's figures ---------------------------------------------------------------------
     @property
@@ -183,8 +189,18 @@ class CanopenHardware(HardwareInterface):
             raise HardwareError(f'canopen: {a}: EDS {eds!r}: {e}') from None
         node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT
         network.add_node(node)
+        end = time.monotonic() + self.boot_timeout
+        while True:                 # a node still booting answers its first SDO late
+            try:
+                device = self._sdo_read(node, a, what, c.DEVICE_TYPE, 0, 'device type')
+                break
+            except HardwareError as e:
+                if 'does not answer' not in str(e) or time.monotonic() > end:
+                    if 'does not answer' in str(e):
+                        raise HardwareError(f'{e}, nor in the {self.boot_timeout:g} s a node '
+                                            f'may take to boot') from None
+                    raise
         node.nmt.state = 'PRE-OPERATIONAL'
-        device = self._sdo_read(node, a, what, c.DEVICE_TYPE, 0, 'device type')
         return node, device
 
     def _sdo_read(self, node, a: str, what: str, index: int, sub: int, name: str) -> int:
@@ -387,6 +403,7 @@ class CanopenHardware(HardwareInterface):
         if n:
             if complete and last:
                 self.response.append(last - self._sync_sent)
+                self._window.append(last - self._sync_sent)
             elif n > 1:
                 self.missed += 1
 
@@ -433,7 +450,10 @@ class CanopenHardware(HardwareInterface):
         self._sync_stamp.pop(self.sync_count - 8, None)
         if n_used and self._sync_sent:
             self.cycle_latency.append(mono - self._sync_sent)
-        self._sync_sent = time.monotonic()
+        sent = time.monotonic()
+        if self._sync_sent:
+            self._intervals.append(sent - self._sync_sent)
+        self._sync_sent = sent
         network.send_message(0x80, b'')
 
     def _controlword(self, x: _Axis) -> int:
@@ -468,6 +488,29 @@ class CanopenHardware(HardwareInterface):
             if time.monotonic() > end:
                 return False
             time.sleep(2e-5)
+
+    def configure_axis(self, axis: str, changes: dict) -> None:
+        """A live change of the axis's canopen registers (torque_per_volt; the others are
+        read-only), applied from the next write."""
+        x = self._ax[axis]
+        x.cfg = dataclasses.replace(x.cfg, **changes)
+
+    def figures(self) -> dict[str, float]:
+        """The bus's figures for /diagnostics: its load, SYNC -> last TPDO latency over the
+        window since the last call, cycles with a sample missing, and each drive's error code."""
+        window, self._window = self._window, []
+        intervals, self._intervals = self._intervals, []
+        out = {'can_bus_load_pct': self.bus_load() * 100, 'can_missed_cycles': self.missed}
+        for key, values in (('can_sync_to_tpdo', window), ('can_sync_interval', intervals)):
+            if values:
+                values.sort()
+                out[f'{key}_p50_us'] = values[len(values) // 2] * 1e6
+                out[f'{key}_p99_us'] = values[min(len(values) - 1, int(len(values) * 0.99))] * 1e6
+                out[f'{key}_max_us'] = values[-1] * 1e6
+        for a, x in self._ax.items():
+            out[f'{a}_drive_statusword'] = x.statusword
+            out[f'{a}_drive_error_code'] = x.error_code
+        return out
 
     # -- what the node shows ---------------------------------------------------------------------
     def drive_states(self) -> dict[str, tuple[str, int, int]]:

@@ -17,9 +17,12 @@ What a drive on the bus does, emulated:
 * the communication watchdog: while OPERATION ENABLED, a SYNC without an RPDO before it, and a
   cycle with no SYNC at all, count towards the plant's `command_timeout` (drive time); past it
   the drive faults with 8250h (RPDO timeout, CiA 301): EMCY, statusword fault bit, 603Fh, and
-  the fault reaction, torque 0 and the dynamic brake (the plant's amplifier watchdog). With no
-  SYNC for FREE_RUN periods the drive runs the slide on its own clock, in real time: a dead
-  master stops the SYNCs, not the slide;
+  the fault reaction, torque 0 and the dynamic brake (the plant's amplifier watchdog). The SYNC
+  is the slide's clock (the controller counts its time in SYNCs too, so a late SYNC stretches a
+  cycle for both); with no SYNC for FREE_RUN s, and no frame at all for as long (an emulated
+  drive that is merely behind with its frames is not without a master), the drive runs the
+  slide on its own clock, in real time: a dead master stops the SYNCs, not the slide. A master
+  killed at 0.1 m/s: FREE_RUN + command_timeout on the last torque, then the brake;
 * quick stop (605Ah): the drive's own velocity loop brakes the motor at 6085h, then (options
   1-4) disables; fault reset (controlword bit 7) clears a fault (EMCY error reset);
 * fault injection (`inject_fault`), and start-up refusals for the master's checks: another
@@ -34,6 +37,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+import can
 import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError
@@ -46,7 +50,11 @@ DEVICE_TYPE_DRIVE = 0x00020192      # CiA 402, servo drive
 DEVICE_TYPE_ENCODER = 0x00080196    # CiA 406
 CST_ONLY = 1 << c.SUPPORTED_MODE_BIT[c.CST]
 DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
-FREE_RUN = 5                        # periods without SYNC after which the drive's clock runs
+# s without a SYNC after which the drive's own clock runs the slide: longer than the stalls of a
+# master on a loaded machine (README, Performance: multi-ms), short enough that a dead master's
+# slide stops within 5 mm from 0.1 m/s (with command_timeout, 10 ms: 3 mm and the brake)
+FREE_RUN = 0.02
+RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look
 HEARTBEAT_MS = 100                  # producer heartbeat at boot-up (the master may change it)
 RPDO_TIMEOUT = 0x8250
 # SDO abort codes (CiA 301)
@@ -339,8 +347,10 @@ class VirtualAxis:
 
 
 class VirtualDrives:
-    """The emulated drives of a machine on one bus: SYNC consumer for all of them, and the
-    drives' own clock while no SYNC comes."""
+    """The emulated drives of a machine on one bus, served by one receive thread: SYNC consumer
+    for all of them, and, while no SYNC comes, the drives' own clock. One thread for both: a
+    drive process held up by its machine finds the SYNCs queued when it runs again and steps on
+    them, instead of mistaking the silence for a dead master."""
 
     def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
                  bitrate: int = 1_000_000, substep_rate: float = 20000.0,
@@ -349,12 +359,12 @@ class VirtualDrives:
         self.axes = {a: VirtualAxis(a, cfg, substep_rate) for a, cfg in axes.items()}
         self.free_run = free_run
         self.network = canopen.Network()
-        self.network.NOTIFIER_CYCLE = 0.1       # a stop waits at most this for the receiver
-        self.lock = threading.Lock()
+        self.lock = threading.Lock()        # the drives' state, against the ROS shell's reads
         self.syncs = 0
+        self.free_steps = 0                 # periods the drives' own clock ran (no SYNC)
         self._last_step = time.monotonic()
         self._stop = threading.Event()
-        self._clock: threading.Thread | None = None
+        self._thread: threading.Thread | None = None
 
     def _nodes(self):
         for ax in self.axes.values():
@@ -363,31 +373,40 @@ class VirtualDrives:
                 yield ax.encoder
 
     def start(self) -> None:
-        """Connect, boot every node (boot-up message, PRE-OPERATIONAL, heartbeat)."""
-        self.network.connect(**self.bus_args)
+        """Open the bus, boot every node (boot-up message, PRE-OPERATIONAL, heartbeat)."""
+        self.network.bus = can.Bus(**self.bus_args)
         for n in self._nodes():
             self.network.add_node(n.node)
         self.network.subscribe(0, self._on_nmt)      # after the nodes' own NMT handlers
         self.network.subscribe(SYNC_COB_ID, self._on_sync)
         for ax in self.axes.values():
-            node = ax.drive.node
-            self.network.subscribe(0x200 + node.id, ax.on_rpdo)
+            self.network.subscribe(0x200 + ax.drive.node.id, ax.on_rpdo)
+        self._thread = threading.Thread(target=self._receive, name='virtual drives',
+                                        daemon=True)
+        self._thread.start()
         for n in self._nodes():
             n.node.sdo[c.PRODUCER_HEARTBEAT].raw = HEARTBEAT_MS
             n.node.nmt.send_command(0x81)       # reset: boot-up message
             n.node.nmt.send_command(0x80)       # PRE-OPERATIONAL, heartbeat on
-        if self.free_run:
-            self._clock = threading.Thread(target=self._run_clock, name='drive clock',
-                                           daemon=True)
-            self._clock.start()
 
     def stop(self) -> None:
         self._stop.set()
-        if self._clock is not None:
-            self._clock.join(1.0)
+        if self._thread is not None:
+            self._thread.join(1.0)
         for n in self._nodes():
             n.node.nmt.stop_heartbeat()
         self.network.disconnect()
+
+    def _receive(self) -> None:
+        bus, network = self.network.bus, self.network
+        while not self._stop.is_set():
+            msg = bus.recv(RECEIVE_SLICE)
+            if msg is None:
+                if self.free_run:
+                    self._run_clock()
+                continue
+            if not (msg.is_error_frame or msg.is_remote_frame):
+                network.notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
@@ -399,22 +418,22 @@ class VirtualDrives:
             self.syncs += 1
             for ax in self.axes.values():
                 ax.sync()
-            self._last_step = time.monotonic()
+        self._last_step = time.monotonic()
 
     def _run_clock(self) -> None:
-        """Without SYNC for FREE_RUN periods the slides run on in real time, one period a step
-        (the watchdog counts them: a dead master's drives fault and brake)."""
-        while not self._stop.is_set():
-            T = min(ax.period for ax in self.axes.values())
-            time.sleep(T)
-            with self.lock:
-                late = time.monotonic() - self._last_step
-                if late < FREE_RUN * T:
-                    continue
-                for ax in self.axes.values():
-                    for _ in range(min(int(late / ax.period), 1000)):
-                        ax.step(ax.period)
-                self._last_step = time.monotonic()
+        """The bus was quiet for RECEIVE_SLICE: without SYNC for FREE_RUN the slides run on in
+        real time, a period a step (the watchdog counts them: a dead master's drives fault and
+        brake)."""
+        now = time.monotonic()
+        late = now - self._last_step
+        if late < FREE_RUN:
+            return
+        with self.lock:
+            for ax in self.axes.values():
+                for _ in range(min(int(late / ax.period), 1000)):
+                    ax.step(ax.period)
+                    self.free_steps += 1
+        self._last_step = now
 
     # -- what the ROS shell and tests use ---------------------------------------------------------
     def inject_fault(self, axis: str, code: int) -> None:

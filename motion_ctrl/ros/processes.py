@@ -137,3 +137,36 @@ def start_sim(controller_params: dict | None = None, plant_params: dict | None =
                              (controller_params or {}) | plant | {'hardware': 'sim'},
                              log_file(log_dir, 'controller'), env=env)
     return (controller,)
+
+
+# `hardware: canopen` between processes: python-can's udp_multicast bus, in a network namespace
+# of its own (PRIVATE_NET) so that no frame leaves the machine.
+CAN_BUS = {'can_interface': 'udp_multicast', 'can_channel': '239.74.163.2',
+           'can_bitrate': 1_000_000}
+PRIVATE_NET = 'MOTION_CTRL_PRIVATE_NET'     # set (to 1) inside private_network's namespace
+
+
+def private_network(argv: list[str]) -> list[str]:
+    """`argv` as a command that runs in a new network namespace, made for it and gone with it
+    (unshare: as root, or an unprivileged user with user namespaces): only its loopback, up,
+    with a route for multicast on it, so udp_multicast's datagrams stay inside. `PRIVATE_NET`
+    is set there."""
+    unshare = ['unshare', '--net'] + ([] if os.geteuid() == 0 else ['--map-root-user'])
+    setup = ('ip link set lo up && ip route add 224.0.0.0/4 dev lo && '
+             f'{PRIVATE_NET}=1 exec "$@"')
+    return unshare + ['sh', '-c', setup, 'sh'] + list(argv)
+
+
+def start_canopen(controller_params: dict | None = None, drive_params: dict | None = None,
+                  log_dir=None, env: dict | None = None, bus: dict | None = None):
+    """The emulated drives (`virtual_drive`) and a controller with `hardware: canopen` on one
+    CAN bus (default CAN_BUS: udp_multicast, so run inside `private_network`), the default
+    params files of both plus overrides; returns (virtual_drive, controller)."""
+    d = params_dir()
+    can = CAN_BUS | (bus or {})
+    drive = NodeProcess('virtual_drive_node', d / 'virtual_drive.yaml',
+                        can | (drive_params or {}), log_file(log_dir, 'virtual_drive'), env=env)
+    controller = NodeProcess('controller_node', d / 'controller.yaml',
+                             {'hardware': 'canopen'} | can | (controller_params or {}),
+                             log_file(log_dir, 'controller'), env=env)
+    return drive, controller
