@@ -25,11 +25,11 @@ class Bench:
     """Emulated drives and a servo loop on `hardware: canopen`, one virtual bus of their own."""
 
     def __init__(self, drives: dict[str, DriveConfig], rate: float = 1000.0,
-                 free_run: bool = False, start_drives: bool = True, **nodes):
+                 realtime: bool = False, start_drives: bool = True, **nodes):
         self.channel = f'test_canopen_{next(_channels)}'
         self.rate = rate
         self.T = 1.0 / rate
-        self.drives = VirtualDrives(drives, 'virtual', self.channel, free_run=free_run)
+        self.drives = VirtualDrives(drives, 'virtual', self.channel, realtime=realtime)
         if start_drives:
             self.drives.start()
         self.log: list[tuple[str, str]] = []
@@ -78,7 +78,7 @@ def benches():
             pass
 
 
-# -- the bus's arithmetic ----------------------------------------------------------------------------
+# -- the bus's arithmetic ------------------------------------------------------------------------
 def test_frame_lengths_and_the_rates_a_megabit_bus_carries():
     assert busload.frame_bits(0) == 55 and busload.frame_bits(4) == 95
     assert busload.frame_bits(8) == 135
@@ -95,7 +95,7 @@ def test_frame_lengths_and_the_rates_a_megabit_bus_carries():
     assert reason.endswith('526 Hz is the most')
 
 
-# -- the CiA 402 state machine ----------------------------------------------------------------------
+# -- the CiA 402 state machine ------------------------------------------------------------------
 def test_the_master_walks_a_drive_to_operation_enabled_and_back():
     sm = c.DriveStateMachine()
     seen = [sm.state]
@@ -146,7 +146,7 @@ def test_quick_stop_options():
     assert sm.state == c.OPERATION_ENABLED
 
 
-# -- the master against emulated drives -------------------------------------------------------------
+# -- the master against emulated drives ---------------------------------------------------------
 @pytest.mark.core_slow
 def test_headline_through_canopen_at_the_highest_rate_with_a_cia406_load_encoder(benches):
     """+2 in, back to +1 in (the reversal), dual feedback, the load encoder on its own CiA 406
@@ -216,7 +216,7 @@ def test_a_drive_fault_aborts_the_axis_with_its_error_code_and_reset_recovers(be
 def test_a_dead_controller_is_stopped_by_the_drive_watchdog(benches):
     """The master stops mid-move at max velocity (as SIGKILLed: no SYNC, no RPDO): the drive's
     clock runs on, its watchdog trips after command_timeout, torque 0 and the dynamic brake."""
-    b = benches({'x': DriveConfig(1)}, free_run=True)
+    b = benches({'x': DriveConfig(1)}, realtime=True)
     b.hw.activate()
     b.run(0.02, wait=True)
     ax = b.axes['x']

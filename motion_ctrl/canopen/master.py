@@ -43,7 +43,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 from motion_ctrl.canopen import busload
 from motion_ctrl.canopen import cia402 as c
@@ -119,11 +119,12 @@ class CanopenHardware(HardwareInterface):
         super().__init__(list(axes))
         self.boot_timeout = boot_timeout
         self.period = period
-        self.bus_args = {'interface': interface, 'channel': channel, 'bitrate': bitrate}
+        self.bus_args: dict[str, Any] = {'interface': interface, 'channel': channel,
+                                         'bitrate': bitrate}
         self.bitrate = bitrate
         self._ax = {a: _Axis(a, cfg) for a, cfg in axes.items()}
         self._log = log or (lambda level, text: None)
-        self.network = None
+        self.network: Any = None            # canopen.Network, while configured
         self.sync_count = 0                 # SYNCs sent
         self._sync_stamp: dict[int, float] = {}     # SYNC count -> its `now` [s]
         self._sync_sent = 0.0               # monotonic time of the last SYNC
@@ -137,6 +138,7 @@ class CanopenHardware(HardwareInterface):
         self._started = 0.0
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
+        self._sync_wall: deque = deque(maxlen=8)    # (time.time() at send, SYNC count)
 
     # -- the bus's figures ---------------------------------------------------------------------
     @property
@@ -309,11 +311,12 @@ class CanopenHardware(HardwareInterface):
             cob = self._sdo_read(node, a, what, p.comm, 1, f'{p.name} COB-ID')
             trans = self._sdo_read(node, a, what, p.comm, 2, f'{p.name} transmission type')
             if got != want or cob != p.cob_id(node.id) or trans != SYNCHRONOUS:
+                def entries(values):
+                    return '[' + ', '.join(f'0x{v:08X}' for v in values) + ']'
                 raise HardwareError(
                     f'canopen: node {node.id} ({a} {what}): {p.name} reads back '
-                    f'{_hex(p.mapping)} = [{", ".join(f"0x{v:08X}" for v in got)}], COB-ID '
-                    f'0x{cob:X}, transmission type {trans}; written [{", ".join(f"0x{v:08X}" for v in want)}], '
-                    f'0x{p.cob_id(node.id):X}, {SYNCHRONOUS}')
+                    f'{_hex(p.mapping)} = {entries(got)}, COB-ID 0x{cob:X}, transmission type '
+                    f'{trans}; written {entries(want)}, 0x{p.cob_id(node.id):X}, {SYNCHRONOUS}')
 
     def _cycle_objects(self, node, a: str, what: str) -> None:
         od = node.object_dictionary
@@ -325,8 +328,22 @@ class CanopenHardware(HardwareInterface):
 
     def _receiver(self, slot: _Slot):
         def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
-            slot.value = (bytes(data), self.sync_count, time.monotonic())
+            slot.value = (bytes(data), self._answers(timestamp), time.monotonic())
         return on_frame
+
+    def _answers(self, timestamp: float) -> int:
+        """The SYNC a TPDO that came in at `timestamp` answers: the last one sent before it.
+        (A frame this process reads late, held up, still counts for the SYNC it came after;
+        a timestamp on another clock than time.time()'s, as some adapters' hardware clocks,
+        is not used: then it is the last SYNC sent.)"""
+        sent = self._sync_wall
+        n = self.sync_count
+        if sent and sent[0][0] - 1.0 < timestamp < time.time() + 0.01:
+            for wall, k in reversed(sent):
+                if wall <= timestamp:
+                    return k
+            return sent[0][1] - 1
+        return n
 
     def _watch(self, node, x: _Axis) -> None:
         nid = node.id
@@ -454,6 +471,7 @@ class CanopenHardware(HardwareInterface):
         if self._sync_sent:
             self._intervals.append(sent - self._sync_sent)
         self._sync_sent = sent
+        self._sync_wall.append((time.time(), self.sync_count))
         network.send_message(0x80, b'')
 
     def _controlword(self, x: _Axis) -> int:

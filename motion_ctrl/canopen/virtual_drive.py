@@ -23,6 +23,10 @@ What a drive on the bus does, emulated:
   drive that is merely behind with its frames is not without a master), the drive runs the
   slide on its own clock, in real time: a dead master stops the SYNCs, not the slide. A master
   killed at 0.1 m/s: FREE_RUN + command_timeout on the last torque, then the brake;
+* a real drive answers a SYNC within its response time, always: the emulated one, when its
+  process was held up and it gets to a SYNC more than half a period after the SYNC came
+  (ANSWER_WITHIN), steps the slide but sends no TPDOs (the master sees a missing sample, as a
+  lost frame), rather than an answer the master would take for one to a later SYNC;
 * quick stop (605Ah): the drive's own velocity loop brakes the motor at 6085h, then (options
   1-4) disables; fault reset (controlword bit 7) clears a fault (EMCY error reset);
 * fault injection (`inject_fault`), and start-up refusals for the master's checks: another
@@ -35,7 +39,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import can
 import canopen
@@ -55,6 +59,7 @@ DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
 # slide stops within 5 mm from 0.1 m/s (with command_timeout, 10 ms: 3 mm and the brake)
 FREE_RUN = 0.02
 RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look
+ANSWER_WITHIN = 0.5                 # periods after a SYNC came in which it is answered
 HEARTBEAT_MS = 100                  # producer heartbeat at boot-up (the master may change it)
 RPDO_TIMEOUT = 0x8250
 # SDO abort codes (CiA 301)
@@ -81,8 +86,18 @@ class DriveConfig:
     refuse_mapping: int = 0          # an object index the drive will not map (0: none)
 
 
+def _get(node: Any, index: int, sub: int = 0) -> int:
+    """An integer object of a node's own dictionary (a local SDO upload)."""
+    obj = node.sdo[index]
+    return int((obj if hasattr(obj, 'raw') else obj[sub]).raw)
+
+
+def _put(node: Any, index: int, value: int) -> None:
+    node.sdo[index].raw = value
+
+
 def _struct_code(var: ODVariable) -> str:
-    return ODVariable.STRUCT_TYPES[var.data_type].format.lstrip('<')
+    return ODVariable.STRUCT_TYPES[var.data_type or 0].format.lstrip('<')
 
 
 def _error_register(code: int) -> int:
@@ -96,15 +111,14 @@ class _Pdo:
     """A PDO as the mapping in the node's object dictionary says: COB-ID and its objects."""
 
     def __init__(self, node: canopen.LocalNode, comm: int, mapping: int) -> None:
-        sdo = node.sdo
-        cob = sdo[comm][1].raw
+        cob = _get(node, comm, 1)
         self.enabled = not cob & PDO_NOT_VALID
         self.cob_id = cob & 0x7FF
-        self.trans_type = sdo[comm][2].raw
+        self.trans_type = _get(node, comm, 2)
         self.entries: list[tuple[int, int]] = []
         codes = ''
-        for k in range(1, sdo[mapping][0].raw + 1):
-            value = sdo[mapping][k].raw
+        for k in range(1, _get(node, mapping, 0) + 1):
+            value = _get(node, mapping, k)
             index, sub = value >> 16, (value >> 8) & 0xFF
             self.entries.append((index, sub))
             codes += _struct_code(_object(node, index, sub))
@@ -137,7 +151,7 @@ class _Node:
             raise SdoAbortedError(ABORT_DEVICE_STATE)
         value, = struct.unpack('<I' if subindex else '<B', data)
         if subindex == 0:           # the number of entries: their total must fit 8 bytes
-            bits = sum(self.node.sdo[index][k].raw & 0xFF for k in range(1, value + 1))
+            bits = sum(_get(self.node, index, k) & 0xFF for k in range(1, value + 1))
             if bits > 64:
                 raise SdoAbortedError(ABORT_PDO_LENGTH)
             return
@@ -176,7 +190,7 @@ class _Node:
                                                                p.entries)))
 
     def period(self) -> float:
-        us = self.node.sdo[c.CYCLE_PERIOD].raw
+        us = _get(self.node, c.CYCLE_PERIOD)
         return us * 1e-6 if us else DEFAULT_PERIOD
 
 
@@ -192,11 +206,11 @@ class VirtualAxis:
         self.encoder = (_Node(config.load_encoder_node_id, ENCODER_EDS)
                         if config.load_encoder_node_id else None)
         node = self.drive.node
-        node.sdo[c.DEVICE_TYPE].raw = config.device_type
-        node.sdo[c.SUPPORTED_MODES].raw = config.supported_modes
+        _put(node, c.DEVICE_TYPE, config.device_type)
+        _put(node, c.SUPPORTED_MODES, config.supported_modes)
         node.add_write_callback(self._on_write)
         node.add_read_callback(self._on_read)
-        self.mode = node.sdo[c.MODES_OF_OPERATION].raw
+        self.mode = _get(node, c.MODES_OF_OPERATION)
         if not config.supported_modes & (1 << c.SUPPORTED_MODE_BIT.get(self.mode, 31)):
             self.mode = 0
         self._rated_torque()
@@ -207,14 +221,14 @@ class VirtualAxis:
         self._qs_ref = 0.0              # the quick stop's velocity reference [m/s]
         # objects the cycle reads, kept as they are written
         self.period = self.drive.period()
-        self.max_torque = node.sdo[c.MAX_TORQUE].raw
-        self.quick_stop_decel = node.sdo[c.QUICK_STOP_DECELERATION].raw
+        self.max_torque = _get(node, c.MAX_TORQUE)
+        self.quick_stop_decel = _get(node, c.QUICK_STOP_DECELERATION)
 
     # -- the object dictionary ------------------------------------------------------------------
     def _rated_torque(self) -> None:
         p = self.plant.params
         rated = p['torque_constant'] * p['amplifier_gain'] * p['amplifier_limit']
-        self.drive.node.sdo[c.RATED_TORQUE].raw = max(1, round(rated * 1000))
+        _put(self.drive.node, c.RATED_TORQUE, max(1, round(rated * 1000)))
 
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         if index == c.MODES_OF_OPERATION:
@@ -232,7 +246,7 @@ class VirtualAxis:
         elif index == c.QUICK_STOP_DECELERATION:
             self.quick_stop_decel, = struct.unpack('<I', data)
         elif index in (c.CONTROLWORD, c.TARGET_TORQUE):
-            self._values[(index, 0)] = od.decode_raw(data)
+            self._values[(index, 0)] = int.from_bytes(data, 'little', signed=index != c.CONTROLWORD)
 
     def _on_read(self, index: int, subindex: int, od: ODVariable):
         if (index, subindex) in self._live:
@@ -268,8 +282,9 @@ class VirtualAxis:
     def on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         self._rx = bytes(data)
 
-    def sync(self) -> None:
-        """A SYNC: apply the RPDO, send the TPDOs (sampled now), integrate one period."""
+    def sync(self, answer: bool = True) -> None:
+        """A SYNC: apply the RPDO, send the TPDOs (sampled now; not when `answer` is false),
+        integrate one period."""
         commanded = False
         if self.drive.operational:
             rx, self._rx = self._rx, None
@@ -284,8 +299,9 @@ class VirtualAxis:
                 if was == c.FAULT and self.sm.state != c.FAULT:
                     self.drive.node.emcy.reset()
                 self.target = self._values.get((c.TARGET_TORQUE, 0), 0)
-            self.drive.send_tpdos(self.value)
-        if self.encoder is not None and self.encoder.operational:
+            if answer:
+                self.drive.send_tpdos(self.value)
+        if answer and self.encoder is not None and self.encoder.operational:
             self.encoder.send_tpdos(self.value)
         self.step(self.period, commanded)
 
@@ -354,10 +370,14 @@ class VirtualDrives:
 
     def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
                  bitrate: int = 1_000_000, substep_rate: float = 20000.0,
-                 free_run: bool = True) -> None:
-        self.bus_args = {'interface': interface, 'channel': channel, 'bitrate': bitrate}
+                 realtime: bool = True) -> None:
+        """`realtime`: the drives' own clock runs when SYNCs stop, and a SYNC reached late is
+        not answered; off, the drives only follow the SYNCs (a lockstep run)."""
+        self.bus_args: dict[str, Any] = {'interface': interface, 'channel': channel,
+                                         'bitrate': bitrate}
         self.axes = {a: VirtualAxis(a, cfg, substep_rate) for a, cfg in axes.items()}
-        self.free_run = free_run
+        self.realtime = realtime
+        self.unanswered = 0                 # SYNCs reached too late to answer
         self.network = canopen.Network()
         self.lock = threading.Lock()        # the drives' state, against the ROS shell's reads
         self.syncs = 0
@@ -380,12 +400,12 @@ class VirtualDrives:
         self.network.subscribe(0, self._on_nmt)      # after the nodes' own NMT handlers
         self.network.subscribe(SYNC_COB_ID, self._on_sync)
         for ax in self.axes.values():
-            self.network.subscribe(0x200 + ax.drive.node.id, ax.on_rpdo)
+            self.network.subscribe(0x200 + ax.config.node_id, ax.on_rpdo)
         self._thread = threading.Thread(target=self._receive, name='virtual drives',
                                         daemon=True)
         self._thread.start()
         for n in self._nodes():
-            n.node.sdo[c.PRODUCER_HEARTBEAT].raw = HEARTBEAT_MS
+            _put(n.node, c.PRODUCER_HEARTBEAT, HEARTBEAT_MS)
             n.node.nmt.send_command(0x81)       # reset: boot-up message
             n.node.nmt.send_command(0x80)       # PRE-OPERATIONAL, heartbeat on
 
@@ -399,10 +419,11 @@ class VirtualDrives:
 
     def _receive(self) -> None:
         bus, network = self.network.bus, self.network
+        assert bus is not None
         while not self._stop.is_set():
             msg = bus.recv(RECEIVE_SLICE)
             if msg is None:
-                if self.free_run:
+                if self.realtime:
                     self._run_clock()
                 continue
             if not (msg.is_error_frame or msg.is_remote_frame):
@@ -414,10 +435,18 @@ class VirtualDrives:
                 n.nmt_changed()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        answer = True
+        if self.realtime:
+            T = min(ax.period for ax in self.axes.values())
+            # (timestamp: when the frame came in, on time.time()'s clock for udp_multicast,
+            # virtual and socketcan; a clock of another base is not judged)
+            late = time.time() - timestamp
+            answer = not ANSWER_WITHIN * T < late < 1.0
+            self.unanswered += not answer
         with self.lock:
             self.syncs += 1
             for ax in self.axes.values():
-                ax.sync()
+                ax.sync(answer)
         self._last_step = time.monotonic()
 
     def _run_clock(self) -> None:

@@ -10,6 +10,7 @@ import pathlib
 import signal
 import subprocess
 import sys
+from typing import Any
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]     # the source tree, or site-packages
 REPO_PARAMS = ROOT / 'params'
@@ -141,7 +142,7 @@ def start_sim(controller_params: dict | None = None, plant_params: dict | None =
 
 # `hardware: canopen` between processes: python-can's udp_multicast bus, in a network namespace
 # of its own (PRIVATE_NET) so that no frame leaves the machine.
-CAN_BUS = {'can_interface': 'udp_multicast', 'can_channel': '239.74.163.2',
+CAN_BUS: dict[str, Any] = {'can_interface': 'udp_multicast', 'can_channel': '239.74.163.2',
            'can_bitrate': 1_000_000}
 PRIVATE_NET = 'MOTION_CTRL_PRIVATE_NET'     # set (to 1) inside private_network's namespace
 
