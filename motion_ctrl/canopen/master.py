@@ -138,6 +138,7 @@ class CanopenHardware(HardwareInterface):
         self._started = 0.0
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
+        self._to_rpdo: list[float] = []     # SYNC -> the RPDO computed from its samples
         self._sync_wall: deque = deque(maxlen=8)    # (time.time() at send, SYNC count)
 
     # -- the bus's figures ---------------------------------------------------------------------
@@ -467,6 +468,7 @@ class CanopenHardware(HardwareInterface):
         self._sync_stamp.pop(self.sync_count - 8, None)
         if n_used and self._sync_sent:
             self.cycle_latency.append(mono - self._sync_sent)
+            self._to_rpdo.append(mono - self._sync_sent)
         sent = time.monotonic()
         if self._sync_sent:
             self._intervals.append(sent - self._sync_sent)
@@ -514,12 +516,17 @@ class CanopenHardware(HardwareInterface):
         x.cfg = dataclasses.replace(x.cfg, **changes)
 
     def figures(self) -> dict[str, float]:
-        """The bus's figures for /diagnostics: its load, SYNC -> last TPDO latency over the
-        window since the last call, cycles with a sample missing, and each drive's error code."""
+        """The bus's figures for /diagnostics: its load; over the window since the last call,
+        SYNC -> last TPDO (the drives' answer), SYNC -> the RPDO computed from it (the loop's
+        delay) and SYNC -> SYNC (how regularly they go out) [us]; the cycles so far and those
+        with a sample missing; each drive's statusword and error code."""
         window, self._window = self._window, []
         intervals, self._intervals = self._intervals, []
-        out = {'can_bus_load_pct': self.bus_load() * 100, 'can_missed_cycles': self.missed}
-        for key, values in (('can_sync_to_tpdo', window), ('can_sync_interval', intervals)):
+        to_rpdo, self._to_rpdo = self._to_rpdo, []
+        out = {'can_bus_load_pct': self.bus_load() * 100, 'can_missed_cycles': self.missed,
+               'can_cycles': self.cycles}
+        for key, values in (('can_sync_to_tpdo', window), ('can_sync_to_rpdo', to_rpdo),
+                            ('can_sync_interval', intervals)):
             if values:
                 values.sort()
                 out[f'{key}_p50_us'] = values[len(values) // 2] * 1e6

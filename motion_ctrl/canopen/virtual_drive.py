@@ -370,13 +370,15 @@ class VirtualDrives:
 
     def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
                  bitrate: int = 1_000_000, substep_rate: float = 20000.0,
-                 realtime: bool = True) -> None:
+                 realtime: bool = True, log: Callable[[str, str], None] | None = None) -> None:
         """`realtime`: the drives' own clock runs when SYNCs stop, and a SYNC reached late is
         not answered; off, the drives only follow the SYNCs (a lockstep run)."""
         self.bus_args: dict[str, Any] = {'interface': interface, 'channel': channel,
                                          'bitrate': bitrate}
         self.axes = {a: VirtualAxis(a, cfg, substep_rate) for a, cfg in axes.items()}
         self.realtime = realtime
+        self._log = log or (lambda level, text: None)
+        self._failed: set[str] = set()      # what went wrong in the receive thread (logged once)
         self.unanswered = 0                 # SYNCs reached too late to answer
         self.network = canopen.Network()
         self.lock = threading.Lock()        # the drives' state, against the ROS shell's reads
@@ -426,8 +428,17 @@ class VirtualDrives:
                 if self.realtime:
                     self._run_clock()
                 continue
-            if not (msg.is_error_frame or msg.is_remote_frame):
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            try:
                 network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+            except Exception as e:      # a bad frame must not stop the drives
+                what = f'frame 0x{msg.arbitration_id:03X}: {e!r}'
+                if what not in self._failed:
+                    self._failed.add(what)
+                    import traceback
+                    self._log('error', f'virtual drives: {what} (once):\n'
+                                       f'{traceback.format_exc()}')
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:

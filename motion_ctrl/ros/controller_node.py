@@ -666,11 +666,10 @@ def run(node_class, args=None) -> int:
     from rclpy.signals import SignalHandlerOptions
     ros_env.local_discovery()
     # The loop runs on the servo bus in a process of its own; this one bridges it (issue 11).
-    if getattr(node_class, 'SERVO_BUS', True):
-        bridged = servo_bus.supervise(f'motion_ctrl.ros.{node_class.NODE_NAME}_node',
-                                      node_class.NODE_NAME, list(args or sys.argv))
-        if bridged is not None:
-            return bridged
+    bridged = servo_bus.supervise(f'motion_ctrl.ros.{node_class.NODE_NAME}_node',
+                                  node_class.NODE_NAME, list(args or sys.argv))
+    if bridged is not None:
+        return bridged
     stop_on_signals(node_class.NODE_NAME)
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -693,8 +692,9 @@ def run(node_class, args=None) -> int:
         # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
         # <name>"; the reason names the parameter too.
         msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
-        where = ros_params.where_from(msg, argv)
-        what = 'hardware' if isinstance(e, HardwareError) else 'bad parameter'
+        hardware = isinstance(e, HardwareError)
+        where = None if hardware else ros_params.where_from(msg, argv)
+        what = 'hardware' if hardware else 'bad parameter'
         print(f'{node_class.__name__}: {what}{f" (from {where})" if where else ""}: '
               f'{msg}', file=sys.stderr, flush=True)
         # Fix: the context's shutdown destroys the half-built node, and rclpy waits for its

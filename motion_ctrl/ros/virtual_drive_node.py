@@ -12,7 +12,8 @@ stop. `plant_states`, `amplifier_states` and `<axis>/amplifier_fault` (true whil
 communication watchdog holds the drive in its fault) are published as the plant node publishes
 them, at PUBLISH_RATE; a drive's fault and its recovery are logged with the error code.
 
-It runs on the user's ROS domain (no servo bus: its servo traffic is on the CAN bus).
+Like the plant, it runs in a process of its own on the servo bus (ros.servo_bus), bridged to
+the user's domain: a ROS tool joining the graph holds up the bridge, not the drives' thread.
 """
 from __future__ import annotations
 
@@ -32,7 +33,6 @@ PUBLISH_RATE = 1000.0        # Hz of plant_states / amplifier_states
 
 class VirtualDriveNode(ros_params.RegisterNode):
     NODE_NAME = 'virtual_drive'
-    SERVO_BUS = False
 
     def __init__(self, **kwargs):
         super().__init__(self.NODE_NAME, **kwargs)
@@ -52,7 +52,8 @@ class VirtualDriveNode(ros_params.RegisterNode):
                 device_type=v['device_type'], supported_modes=v['supported_modes'],
                 refuse_mapping=v['refuse_mapping'])
         self.drives = VirtualDrives(configs, g['can_interface'], g['can_channel'],
-                                    g['can_bitrate'], substep_rate=g['substep_rate'])
+                                    g['can_bitrate'], substep_rate=g['substep_rate'],
+                                    log=self._drive_log)
         try:
             self.drives.start()
         except Exception as e:      # python-can raises per interface
@@ -70,6 +71,9 @@ class VirtualDriveNode(ros_params.RegisterNode):
             for a, v in self.values.items())
         self.get_logger().info(f'CiA 402 drives on {g["can_interface"]} {g["can_channel"]} '
                                f'({ids}): waiting for the master')
+
+    def _drive_log(self, level: str, text: str) -> None:
+        (self.get_logger().error if level == 'error' else self.get_logger().info)(text)
 
     def _plant_consistency(self, values: dict) -> list[str]:
         return plant_consistency({k: v for k, v in values.items() if k in PLANT_AXIS})
