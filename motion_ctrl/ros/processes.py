@@ -159,15 +159,18 @@ def private_network(argv: list[str]) -> list[str]:
 
 
 def start_canopen(controller_params: dict | None = None, drive_params: dict | None = None,
-                  log_dir=None, env: dict | None = None, bus: dict | None = None):
+                  log_dir=None, env: dict | None = None, bus: dict | None = None,
+                  params_files: bool = True):
     """The emulated drives (`virtual_drive`) and a controller with `hardware: canopen` on one
     CAN bus (default CAN_BUS: udp_multicast, so run inside `private_network`), the default
-    params files of both plus overrides; returns (virtual_drive, controller)."""
+    params files of both (which set axis x; params_files=False: the register table's defaults,
+    for any axis names) plus overrides; returns (virtual_drive, controller)."""
     d = params_dir()
+    file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
     can = CAN_BUS | (bus or {})
-    drive = NodeProcess('virtual_drive_node', d / 'virtual_drive.yaml',
+    drive = NodeProcess('virtual_drive_node', file('virtual_drive'),
                         can | (drive_params or {}), log_file(log_dir, 'virtual_drive'), env=env)
-    controller = NodeProcess('controller_node', d / 'controller.yaml',
+    controller = NodeProcess('controller_node', file('controller'),
                              {'hardware': 'canopen'} | can | (controller_params or {}),
                              log_file(log_dir, 'controller'), env=env)
     return drive, controller

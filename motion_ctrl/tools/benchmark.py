@@ -298,7 +298,7 @@ def bench_canopen(n_axes: int, seconds: float = 5.0) -> dict:
         f'{a}.load_encoder_node_id': e for a, e in zip(axes, encoders)}
     axes_param = '[' + ','.join(axes) + ']'
     drive, controller = start_canopen({'axes': axes_param, 'servo_rate': rate} | ids,
-                                      {'axes': axes_param} | ids)
+                                      {'axes': axes_param} | ids, params_files=False)
     node = Node('bench_observer')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
