@@ -20,9 +20,10 @@ What a drive on the bus does, emulated:
   the fault reaction, torque 0 and the dynamic brake (the plant's amplifier watchdog). The SYNC
   is the slide's clock (the controller counts its time in SYNCs too, so a late SYNC stretches a
   cycle for both); with no SYNC for FREE_RUN s, and no frame at all for as long (an emulated
-  drive that is merely behind with its frames is not without a master), the drive runs the
-  slide on its own clock, in real time: a dead master stops the SYNCs, not the slide. A master
-  killed at 0.1 m/s: FREE_RUN + command_timeout on the last torque, then the brake;
+  drive that is merely behind with its frames is not without a master), the drive's own clock
+  takes over: it runs the slide in real time from the last SYNC on, the watchdog counting those
+  periods too: a dead master stops the SYNCs, not the slide. A master killed at 0.1 m/s:
+  command_timeout on the last torque (1 mm), then the brake (1 mm);
 * a real drive answers a SYNC within its response time, always: the emulated one, when its
   process was held up and it gets to a SYNC more than half a period after the SYNC came
   (ANSWER_WITHIN), steps the slide but sends no TPDOs (the master sees a missing sample, as a
@@ -54,9 +55,8 @@ DEVICE_TYPE_DRIVE = 0x00020192      # CiA 402, servo drive
 DEVICE_TYPE_ENCODER = 0x00080196    # CiA 406
 CST_ONLY = 1 << c.SUPPORTED_MODE_BIT[c.CST]
 DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
-# s without a SYNC after which the drive's own clock runs the slide: longer than the stalls of a
-# master on a loaded machine (README, Performance: multi-ms), short enough that a dead master's
-# slide stops within 5 mm from 0.1 m/s (with command_timeout, 10 ms: 3 mm and the brake)
+# s without a SYNC after which the drive's own clock runs the slide (from the last SYNC on):
+# longer than the stalls of a master on a loaded machine (README, Performance: multi-ms)
 FREE_RUN = 0.02
 RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look
 ANSWER_WITHIN = 0.5                 # periods after a SYNC came in which it is answered
