@@ -15,7 +15,7 @@ from motion_ctrl.canopen.objects import cycle_frames
 from motion_ctrl.canopen.virtual_drive import DriveConfig, VirtualDrives
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.hardware import HardwareError
-from motion_ctrl.core.registers import LOAD_COUNTS_PER_M
+from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, MOTOR_COUNTS_PER_M
 from motion_ctrl.core.servo_loop import ServoLoop
 
 _channels = itertools.count()
@@ -40,6 +40,7 @@ class Bench:
         self.axes = {a: Axis(a) for a in drives}
         self.loop = ServoLoop(self.axes, {a: x.r for a, x in self.axes.items()}, self.T, 0.02,
                               sim_time=True, hardware=self.hw)
+        self.hw.watch(self.axes)
         self.t = 0.0
 
     def run(self, seconds: float, wait: bool = True) -> list[tuple[str, str]]:
@@ -210,6 +211,31 @@ def test_a_drive_fault_aborts_the_axis_with_its_error_code_and_reset_recovers(be
     assert ax.move_to(0.0254)[0]
     b.run(1.2)
     assert ax.status & Status.MOTION_DONE and b.drives.axes['x'].plant.x_l > where
+    assert abs(b.slide_error_counts('x', 0.0254)) <= 1.0
+
+
+def test_an_estop_is_the_drives_quick_stop_where_the_axis_has_one(benches):
+    """estop_quick_stop: the ESTOP makes the drive quick-stop (controlword 02h): it brakes on
+    its own at 6085h and disables (605Ah = 2); the next move enables it again."""
+    decel = round(10.0 * MOTOR_COUNTS_PER_M)              # estop_deceleration, in 6064h counts
+    b = benches({'x': DriveConfig(1)}, x=AxisNodes(1, quick_stop_deceleration=decel))
+    b.hw.activate()
+    b.run(0.02)
+    ax, drive = b.axes['x'], b.drives.axes['x']
+    assert drive.quick_stop_decel == decel and drive.sm.quick_stop_option == 2
+    assert ax.move_to(0.2)[0]
+    while drive.plant.v_l < 0.099:
+        b.run(b.T)
+    assert ax.stop('estop')[0]
+    states = []
+    for _ in range(150):
+        b.run(b.T)
+        states.append(drive.sm.state)
+    assert c.QUICK_STOP_ACTIVE in states and states[-1] == c.SWITCH_ON_DISABLED
+    assert abs(drive.plant.v_l) < 1e-4 and ax.status & Status.ESTOPPED and ax.enabled
+    assert ax.move_to(0.0254)[0]
+    b.run(2.5)
+    assert drive.sm.state == c.OPERATION_ENABLED and ax.status & Status.MOTION_DONE
     assert abs(b.slide_error_counts('x', 0.0254)) <= 1.0
 
 

@@ -31,7 +31,10 @@ The CiA 402 state machine follows the axis: `enable(axis, True)` walks the drive
 shutdown, switch on, enable operation (one transition a cycle, from the statusword it
 reports); `enable(axis, False)` (ABORT, disable, a fault) is disable voltage; `reset` is a fault
 reset (a rising edge of controlword bit 7), and a FAULT the drive reports from a sample taken
-before the reset took effect is not reported again. `deactivate` (the controller's stop) sends
+before the reset took effect is not reported again. An axis with a quick stop deceleration
+(`estop_quick_stop`) has the drive quick-stop (controlword 02h) while its status says ESTOPPED
+(`watch` gives the axes): the drive brakes at 6085h on its own and disables (605Ah = 2); the
+next move, which clears ESTOPPED, enables it again. `deactivate` (the controller's stop) sends
 torque 0 with disable voltage, applied by a last SYNC, and returns the nodes to
 PRE-OPERATIONAL.
 """
@@ -51,6 +54,9 @@ from motion_ctrl.canopen.objects import (DRIVE_EDS, ENCODER_EDS, ENCODER_TPDO1, 
                                          RPDO1, SYNCHRONOUS, TPDO1, Pdo, cycle_frames,
                                          drive_pdos, mapping_entry)
 from motion_ctrl.core.hardware import DRIVE, LINK, FeedbackSink, HardwareError, HardwareInterface
+from msg_defs.status import Status
+
+_ESTOPPED = int(Status.ESTOPPED)
 
 HEARTBEAT_MS = 100              # 1017h written to every node
 HEARTBEAT_LOST = 2.5            # heartbeat periods without one: the node is lost (CiA 301
@@ -72,6 +78,9 @@ class AxisNodes:
     load_encoder_node_id: int = 0
     eds: str = ''
     torque_per_volt: float = 100.0
+    # an ESTOP of the axis is the drive's quick stop too (605Ah = 2, at 6085h [counts/s²]);
+    # 0: the controller's ESTOP profile alone
+    quick_stop_deceleration: int = 0
 
 
 class _Slot:
@@ -101,6 +110,7 @@ class _Axis:
         self.heartbeat: dict[int, tuple[float, int]] = {}   # node id -> (arrival, NMT state)
         self.emcy: deque = deque(maxlen=16)  # (node id, code, register) not yet logged
         self.fault: str | None = None       # the DRIVE fault being reported
+        self.quick_stop = False             # the drive is told to quick-stop (an ESTOP)
 
 
 def _hex(index: int, sub: int = 0) -> str:
@@ -136,6 +146,7 @@ class CanopenHardware(HardwareInterface):
         self.missed = 0
         self.cycles = 0
         self._started = 0.0
+        self._axes: dict = {}               # the servo loop's axes (watch): their status
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
         self._to_rpdo: list[float] = []     # SYNC -> the RPDO computed from its samples
@@ -257,6 +268,11 @@ class CanopenHardware(HardwareInterface):
         self._map(node, a, what, rx, c.RPDO_COMM)
         self._map(node, a, what, tx, c.TPDO_COMM)
         self._cycle_objects(node, a, what)
+        if x.cfg.quick_stop_deceleration:
+            self._sdo_write(node, a, what, c.QUICK_STOP_OPTION, 0, 2,
+                            'the quick stop option code (605Ah = 2: ramp, then disable)')
+            self._sdo_write(node, a, what, c.QUICK_STOP_DECELERATION, 0,
+                            x.cfg.quick_stop_deceleration, 'the quick stop deceleration')
         rated = self._sdo_read(node, a, what, c.RATED_TORQUE, 0, 'motor rated torque')
         self._log('info', f'{a}: node {node.id}: CiA 402 drive in CST, rated torque {rated} '
                           f'mN·m, {x.cfg.torque_per_volt:g} ‰/V; PDOs {RPDO1.name} '
@@ -433,7 +449,9 @@ class CanopenHardware(HardwareInterface):
             sink.fault(a, DRIVE, x.fault)
             return
         x.fault = None
-        if x.want and state != c.OPERATION_ENABLED and n > x.ignore_fault_until and \
+        if x.quick_stop:
+            x.want_since = time.monotonic()     # (disabled on purpose: the ESTOP's quick stop)
+        elif x.want and state != c.OPERATION_ENABLED and n > x.ignore_fault_until and \
                 time.monotonic() - x.want_since > ENABLE_TIMEOUT:
             sink.fault(a, DRIVE, f'node {x.cfg.node_id}: not OPERATION ENABLED '
                                  f'{ENABLE_TIMEOUT:g} s after enable: {state} (statusword '
@@ -455,8 +473,11 @@ class CanopenHardware(HardwareInterface):
         out = dict(zip(names, outputs))
         mono = time.monotonic()
         n_used = self.sync_count
+        axes = self._axes
         for x in self._ax.values():
-            cw = self._controlword(x)
+            x.quick_stop = bool(x.cfg.quick_stop_deceleration and x.want and x.name in axes
+                                and axes[x.name].status & _ESTOPPED)
+            cw = c.CW_QUICK_STOP if x.quick_stop else self._controlword(x)
             torque = 0
             if x.want and c.state_of(x.statusword) == c.OPERATION_ENABLED:
                 volts = out.get(x.name, 0.0)
@@ -508,6 +529,11 @@ class CanopenHardware(HardwareInterface):
             if time.monotonic() > end:
                 return False
             time.sleep(2e-5)
+
+    def watch(self, axes: dict) -> None:
+        """The servo loop's axes (core.axis.Axis by name): an ESTOP in their status is the
+        drive's quick stop where the axis has one."""
+        self._axes = axes
 
     def configure_axis(self, axis: str, changes: dict) -> None:
         """A live change of the axis's canopen registers (torque_per_volt; the others are

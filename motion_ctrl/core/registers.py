@@ -490,6 +490,12 @@ CANOPEN_AXIS = CAN_AXIS + (
        "torque-mode amplifier's input scaling does (the default slide: 0.05 N·m/V). The gains "
        'stay in volts.', 'analog amplifier input scaling; CiA 402 6071h', min=0.0,
        max=3276.7, min_exclusive=True),
+    _r('estop_quick_stop', 'integer', 0, '', "1: an ESTOP is also the drive's quick stop: "
+       'while the axis is ESTOPPED the controlword says quick stop (02h), and the drive brakes '
+       'on its own at 6085h (written at start-up: estop_deceleration in motor counts/s²) and '
+       "then disables (605Ah = 2), whatever the loop does; the next move enables it again. 0: "
+       "the controller's ESTOP profile alone, through the drive in torque mode.",
+       'CiA 402 quick stop, 605Ah / 6085h; RMP ESTOP', min=0, max=1, read_only=True),
 )
 
 # The registers a hardware backend adds to the controller (declared only when `hardware` chooses

@@ -133,6 +133,8 @@ class ControllerNode(ros_params.RegisterNode):
         self.hardware.configure()          # raises HardwareError: one line, exit 2 (run)
         self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
                               self.sim_time, self.hardware)
+        if self.hardware_kind == 'canopen':
+            self.hardware.watch(self.axes)
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._stage)
 
@@ -244,7 +246,10 @@ class ControllerNode(ros_params.RegisterNode):
         g = values[None]
         return CanopenHardware(
             {a: AxisNodes(values[a]['can_node_id'], values[a]['load_encoder_node_id'],
-                          values[a]['eds'], values[a]['torque_per_volt'])
+                          values[a]['eds'], values[a]['torque_per_volt'],
+                          round(self.values[a]['estop_deceleration']
+                                * self.values[a]['motor_counts_per_m'])
+                          if values[a]['estop_quick_stop'] else 0)
              for a in self.axis_names}, self.period, g['can_interface'], g['can_channel'],
             g['can_bitrate'], log=self._hardware_log)
 
