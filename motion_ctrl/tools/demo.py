@@ -89,7 +89,11 @@ def main(argv=None) -> int:
             print(f'demo: the nodes did not come up ({client.not_ready()}); see the logs',
                   file=sys.stderr)
             return 1
-        recorder = Recorder(bag).start()
+        from motion_ctrl.tools.record import SERVO_TOPICS
+        # (canopen: the servo traffic is on the CAN bus, there is no command / encoders topic)
+        topics = None if args.hardware == 'topics' else [
+            t for t in SERVO_TOPICS if t not in ('command', 'encoders')]
+        recorder = Recorder(bag, topics, discover_status=True).start()
         if not recorder.wait_ready(10.0):
             print('demo: the recorder did not see every topic; recording anyway')
         print(f'{"move":<28}{"target [m]":>12}{"slide error [counts]":>22}{"MOTION_DONE [ms]":>18}')
