@@ -17,12 +17,12 @@ the node exits 2. `activate` starts the nodes (NMT OPERATIONAL).
 
 The cycle (`read` / `write` of ServoLoop.cycle), as a CANopen manager's task runs it:
 
-* `read`: the TPDOs received since the last cycle, sampled by the drives at the last SYNC,
-  become each axis's sample (motor 6064h, load 60E4h or the encoder's 6004h), stamped with
-  that SYNC's time; an axis whose TPDOs of that SYNC did not all come has no new sample (a
-  missing sample: feedback_timeout counts it). The statusword's fault bit is a DRIVE fault
-  with the error code 603Fh it carries; a lost heartbeat, or a node that left OPERATIONAL,
-  a LINK fault; an EMCY is logged.
+* `read`: the newest TPDOs, sampled by the drives at a SYNC (normally the last), become each
+  axis's sample (motor 6064h, load 60E4h or the encoder's 6004h), stamped with that SYNC's
+  time (`_Slot`: which SYNC a frame answers is counted); an axis whose TPDOs of no newer SYNC
+  have all come has no new sample (a missing sample: feedback_timeout counts it). The
+  statusword's fault bit is a DRIVE fault with the error code 603Fh it carries; a lost
+  heartbeat, or a node that left OPERATIONAL, a LINK fault; an EMCY is logged.
 * `write`: per drive, the RPDO (controlword, target torque), then the SYNC: the drives apply
   the RPDO at this SYNC and sample their TPDOs, which the next cycle reads. The loop's delay is
   one period (the sample's age), which the loop takes out as it does a network's.
@@ -66,6 +66,8 @@ BOOT_TIMEOUT = 5.0              # s a node may take to answer its first SDO (it 
 ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
 NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
+KEPT = 8                        # frames kept per TPDO (their SYNCs: the last KEPT)
+REALIGN = 8                     # SYNCs a TPDO count may lag before it is realigned
 STATS = 100_000                 # cycles of latency kept for the benchmark
 
 
@@ -84,11 +86,26 @@ class AxisNodes:
 
 
 class _Slot:
-    """The newest frame of one TPDO: (data, the SYNC count it answers, arrival [s])."""
-    __slots__ = ('value',)
+    """The frames of one TPDO, by the SYNC they answer: a drive answers every SYNC, in order,
+    from the first after its NMT start (CAN delivers every frame, in order, or goes bus-off), so
+    the m-th frame answers the m-th SYNC, however late it comes. A count that falls more than
+    REALIGN SYNCs behind those sent before the frame came (frames lost to an overrun) is
+    realigned to the last SYNC sent."""
+    __slots__ = ('frames', 'count', 'realigned')
 
     def __init__(self) -> None:
-        self.value: tuple[bytes, int, float] | None = None
+        self.frames: deque = deque(maxlen=KEPT)     # (SYNC count, data, arrival [s])
+        self.count = 0
+        self.realigned = 0
+
+    def newest(self) -> tuple[int, bytes, float] | None:
+        return self.frames[-1] if self.frames else None
+
+    def answering(self, n: int) -> tuple[int, bytes, float] | None:
+        for frame in reversed(self.frames):
+            if frame[0] == n:
+                return frame
+        return None
 
 
 class _Axis:
@@ -150,7 +167,6 @@ class CanopenHardware(HardwareInterface):
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
         self._to_rpdo: list[float] = []     # SYNC -> the RPDO computed from its samples
-        self._sync_wall: deque = deque(maxlen=8)    # (time.time() at send, SYNC count)
 
     # -- the bus's figures ---------------------------------------------------------------------
     @property
@@ -345,22 +361,14 @@ class CanopenHardware(HardwareInterface):
 
     def _receiver(self, slot: _Slot):
         def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
-            slot.value = (bytes(data), self._answers(timestamp), time.monotonic())
+            n = slot.count + 1
+            sent = self.sync_count
+            if not sent - REALIGN <= n <= sent:
+                n = sent
+                slot.realigned += 1
+            slot.count = n
+            slot.frames.append((n, bytes(data), time.monotonic()))
         return on_frame
-
-    def _answers(self, timestamp: float) -> int:
-        """The SYNC a TPDO that came in at `timestamp` answers: the last one sent before it.
-        (A frame this process reads late, held up, still counts for the SYNC it came after;
-        a timestamp on another clock than time.time()'s, as some adapters' hardware clocks,
-        is not used: then it is the last SYNC sent.)"""
-        sent = self._sync_wall
-        n = self.sync_count
-        if sent and sent[0][0] - 1.0 < timestamp < time.time() + 0.01:
-            for wall, k in reversed(sent):
-                if wall <= timestamp:
-                    return k
-            return sent[0][1] - 1
-        return n
 
     def _watch(self, node, x: _Axis) -> None:
         nid = node.id
@@ -407,25 +415,25 @@ class CanopenHardware(HardwareInterface):
     # -- the cycle -------------------------------------------------------------------------------
     def read(self, now: float, sink: FeedbackSink) -> None:
         n = self.sync_count
-        stamp = self._sync_stamp.get(n)
         self.cycles += 1
         complete = True
         mono = time.monotonic()
         last = 0.0
         for a, x in self._ax.items():
-            tp = x.tpdo1.value
+            tp = x.tpdo1.newest()
             if tp is not None:
-                sw, motor, code = TPDO1.codec.unpack(tp[0])
-                x.statusword, x.error_code = sw, code
-                ld = x.load.value
-                if tp[1] == n and ld is not None and ld[1] == n and n != x.used \
-                        and stamp is not None:
-                    x.used = n
-                    sink.feedback(a, motor, _load(ld[0]), stamp)
-                    last = max(last, tp[2], ld[2])
+                sample = self._sample(x, tp)
+                if sample is not None:
+                    k, motor, load, arrived = sample
+                    x.used = k
+                    sink.feedback(a, motor, load, self._sync_stamp[k])
+                    if k == n:
+                        last = max(last, arrived)
+                    else:
+                        complete = False
                 else:
                     complete = False
-                self._faults(a, x, tp[1], sink)
+                self._faults(a, x, tp[0], sink)
             else:
                 complete = False
             self._link(a, x, mono, sink)
@@ -440,6 +448,20 @@ class CanopenHardware(HardwareInterface):
                 self._window.append(last - self._sync_sent)
             elif n > 1:
                 self.missed += 1
+
+    def _sample(self, x: _Axis, tp) -> tuple[int, int, int, float] | None:
+        """The newest SYNC, not used yet, whose TPDOs have all come: (its count, motor, load,
+        when the last of them came). The statusword and error code are the newest whatever."""
+        k, data, arrived = tp
+        sw, motor, code = TPDO1.codec.unpack(data)
+        x.statusword, x.error_code = sw, code
+        for k, data, arrived in reversed(x.tpdo1.frames):
+            if k <= x.used:
+                return None
+            ld = x.load.answering(k)
+            if ld is not None and k in self._sync_stamp:
+                return k, TPDO1.codec.unpack(data)[1], _load(ld[1]), max(arrived, ld[2])
+        return None
 
     def _faults(self, a: str, x: _Axis, n: int, sink: FeedbackSink) -> None:
         state = c.state_of(x.statusword)
@@ -486,7 +508,7 @@ class CanopenHardware(HardwareInterface):
             x.cw = cw
         self.sync_count += 1
         self._sync_stamp[self.sync_count] = now
-        self._sync_stamp.pop(self.sync_count - 8, None)
+        self._sync_stamp.pop(self.sync_count - KEPT, None)
         if n_used and self._sync_sent:
             self.cycle_latency.append(mono - self._sync_sent)
             self._to_rpdo.append(mono - self._sync_sent)
@@ -494,7 +516,6 @@ class CanopenHardware(HardwareInterface):
         if self._sync_sent:
             self._intervals.append(sent - self._sync_sent)
         self._sync_sent = sent
-        self._sync_wall.append((time.time(), self.sync_count))
         network.send_message(0x80, b'')
 
     def _controlword(self, x: _Axis) -> int:
@@ -524,7 +545,7 @@ class CanopenHardware(HardwareInterface):
         n = self.sync_count
         slots = [s for x in self._ax.values() for s in (x.tpdo1, x.load)]
         while True:
-            if all(s.value is not None and s.value[1] == n for s in slots):
+            if all(s.answering(n) is not None for s in slots):
                 return True
             if time.monotonic() > end:
                 return False

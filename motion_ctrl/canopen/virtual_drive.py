@@ -24,10 +24,8 @@ What a drive on the bus does, emulated:
   takes over: it runs the slide in real time from the last SYNC on, the watchdog counting those
   periods too: a dead master stops the SYNCs, not the slide. A master killed at 0.1 m/s:
   command_timeout on the last torque (1 mm), then the brake (1 mm);
-* a real drive answers a SYNC within its response time, always: the emulated one, when its
-  process was held up and it gets to a SYNC more than half a period after the SYNC came
-  (ANSWER_WITHIN), steps the slide but sends no TPDOs (the master sees a missing sample, as a
-  lost frame), rather than an answer the master would take for one to a later SYNC;
+* every SYNC is answered, in order, also when the emulated drive's process was held up and
+  answers late (the master counts the frames: the m-th answers the m-th SYNC);
 * quick stop (605Ah): the drive's own velocity loop brakes the motor at 6085h, then (options
   1-4) disables; fault reset (controlword bit 7) clears a fault (EMCY error reset);
 * fault injection (`inject_fault`), and start-up refusals for the master's checks: another
@@ -59,7 +57,6 @@ DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
 # longer than the stalls of a master on a loaded machine (README, Performance: multi-ms)
 FREE_RUN = 0.02
 RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look
-ANSWER_WITHIN = 0.5                 # periods after a SYNC came in which it is answered
 HEARTBEAT_MS = 100                  # producer heartbeat at boot-up (the master may change it)
 RPDO_TIMEOUT = 0x8250
 # SDO abort codes (CiA 301)
@@ -282,9 +279,8 @@ class VirtualAxis:
     def on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         self._rx = bytes(data)
 
-    def sync(self, answer: bool = True) -> None:
-        """A SYNC: apply the RPDO, send the TPDOs (sampled now; not when `answer` is false),
-        integrate one period."""
+    def sync(self) -> None:
+        """A SYNC: apply the RPDO, send the TPDOs (sampled now), integrate one period."""
         commanded = False
         if self.drive.operational:
             rx, self._rx = self._rx, None
@@ -299,9 +295,8 @@ class VirtualAxis:
                 if was == c.FAULT and self.sm.state != c.FAULT:
                     self.drive.node.emcy.reset()
                 self.target = self._values.get((c.TARGET_TORQUE, 0), 0)
-            if answer:
-                self.drive.send_tpdos(self.value)
-        if answer and self.encoder is not None and self.encoder.operational:
+            self.drive.send_tpdos(self.value)
+        if self.encoder is not None and self.encoder.operational:
             self.encoder.send_tpdos(self.value)
         self.step(self.period, commanded)
 
@@ -371,15 +366,14 @@ class VirtualDrives:
     def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
                  bitrate: int = 1_000_000, substep_rate: float = 20000.0,
                  realtime: bool = True, log: Callable[[str, str], None] | None = None) -> None:
-        """`realtime`: the drives' own clock runs when SYNCs stop, and a SYNC reached late is
-        not answered; off, the drives only follow the SYNCs (a lockstep run)."""
+        """`realtime`: the drives' own clock runs the slides when SYNCs stop; off, the drives
+        only follow the SYNCs (a lockstep run)."""
         self.bus_args: dict[str, Any] = {'interface': interface, 'channel': channel,
                                          'bitrate': bitrate}
         self.axes = {a: VirtualAxis(a, cfg, substep_rate) for a, cfg in axes.items()}
         self.realtime = realtime
         self._log = log or (lambda level, text: None)
         self._failed: set[str] = set()      # what went wrong in the receive thread (logged once)
-        self.unanswered = 0                 # SYNCs reached too late to answer
         self.network = canopen.Network()
         self.lock = threading.Lock()        # the drives' state, against the ROS shell's reads
         self.syncs = 0
@@ -446,18 +440,10 @@ class VirtualDrives:
                 n.nmt_changed()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        answer = True
-        if self.realtime:
-            T = min(ax.period for ax in self.axes.values())
-            # (timestamp: when the frame came in, on time.time()'s clock for udp_multicast,
-            # virtual and socketcan; a clock of another base is not judged)
-            late = time.time() - timestamp
-            answer = not ANSWER_WITHIN * T < late < 1.0
-            self.unanswered += not answer
         with self.lock:
             self.syncs += 1
             for ax in self.axes.values():
-                ax.sync(answer)
+                ax.sync()
         self._last_step = time.monotonic()
 
     def _run_clock(self) -> None:
