@@ -377,6 +377,7 @@ class VirtualDrives:
         self.network = canopen.Network()
         self.lock = threading.Lock()        # the drives' state, against the ROS shell's reads
         self.syncs = 0
+        self.sampled: tuple[float, list[float], list[float], list[float]] | None = None
         self.free_steps = 0                 # periods the drives' own clock ran (no SYNC)
         self._last_step = time.monotonic()
         self._stop = threading.Event()
@@ -442,6 +443,11 @@ class VirtualDrives:
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
             self.syncs += 1
+            # (timestamp: when the frame came in, on time.time()'s clock for udp_multicast,
+            # virtual and socketcan; plant_states is stamped with it, as the controller stamps
+            # the tick that sent this SYNC)
+            now = time.time()
+            self.sampled = (timestamp if now - 1.0 < timestamp <= now else now, *self._state())
             for ax in self.axes.values():
                 ax.sync()
         self._last_step = time.monotonic()
@@ -473,16 +479,23 @@ class VirtualDrives:
             ax.plant.configure(**changes)
             ax._rated_torque()
 
-    def truth(self) -> tuple[list[float], list[float], list[float]]:
-        """Positions, velocities [m, m/s] (motor then load, axis by axis: plant_states' order)
-        and the volts each amplifier applied."""
+    def truth(self) -> tuple[float, list[float], list[float], list[float]]:
+        """The slides as the last SYNC found them (what the TPDOs sampled), with the time.time()
+        that SYNC came at; or, while the drives' own clock runs (no SYNC), as they are now:
+        (time [s], positions, velocities [m, m/s] (motor then load, axis by axis:
+        plant_states' order), the volts each amplifier applied)."""
+        with self.lock:
+            if self.sampled is not None and time.monotonic() - self._last_step < FREE_RUN:
+                return self.sampled
+            return (time.time(), *self._state())
+
+    def _state(self) -> tuple[list[float], list[float], list[float]]:
         pos: list[float] = []
         vel: list[float] = []
         volts: list[float] = []
-        with self.lock:
-            for ax in self.axes.values():
-                p = ax.plant
-                pos += [p.x_m, p.x_l]
-                vel += [p.v_m, p.v_l]
-                volts.append(p.volts)
+        for ax in self.axes.values():
+            p = ax.plant
+            pos += [p.x_m, p.x_l]
+            vel += [p.v_m, p.v_l]
+            volts.append(p.volts)
         return pos, vel, volts

@@ -26,6 +26,7 @@ from motion_ctrl.core.registers import (PLANT_AXIS, VIRTUAL_DRIVE_AXIS, VIRTUAL_
                                         plant_consistency)
 from motion_ctrl.ros import ros_params
 from motion_ctrl.ros.controller_node import run
+from motion_ctrl.ros.hardware_topics import stamp_of
 from motion_ctrl.ros.plant_states import PlantStates
 
 PUBLISH_RATE = 1000.0        # Hz of plant_states / amplifier_states
@@ -65,6 +66,8 @@ class VirtualDriveNode(ros_params.RegisterNode):
         self.states = PlantStates(self, self.axis_names, {
             a: v['command_timeout'] for a, v in self.values.items()})
         self.reported = {a: (c.SWITCH_ON_DISABLED, 0) for a in self.axis_names}
+        self._published = -1.0
+        self._truth: list = []
         self.timer = self.create_timer(1.0 / PUBLISH_RATE, self._publish)
         ids = ', '.join(f'{a}: drive {v["can_node_id"]}' + (
             f', encoder {v["load_encoder_node_id"]}' if v['load_encoder_node_id'] else '')
@@ -95,7 +98,13 @@ class VirtualDriveNode(ros_params.RegisterNode):
             self.values[axis].update(changes)
 
     def _publish(self) -> None:
-        self.states.publish(self.get_clock().now().to_msg(), self)
+        """The slides as the last SYNC found them, stamped with the time it came (the
+        controller stamps what it publishes with the time of the tick that sent it): the two
+        line up in a recording whatever the scheduler does to either process."""
+        when, *self._truth = self.drives.truth()
+        if when != self._published:
+            self._published = when
+            self.states.publish(stamp_of(when), self)
         for a, ax in self.drives.axes.items():
             now = (ax.sm.state, ax.sm.error_code)
             if now == self.reported[a]:
@@ -110,11 +119,10 @@ class VirtualDriveNode(ros_params.RegisterNode):
 
     # -- what PlantStates publishes --------------------------------------------------------------
     def truth(self) -> tuple[list[float], list[float]]:
-        pos, vel, _ = self.drives.truth()
-        return pos, vel
+        return self._truth[0], self._truth[1]
 
     def applied(self) -> list[float]:
-        return self.drives.truth()[2]
+        return self._truth[2]
 
     def tripped(self) -> list[bool]:
         """The communication watchdog holds the drive in its fault."""
