@@ -67,7 +67,6 @@ ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
 NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
 KEPT = 8                        # frames kept per TPDO (their SYNCs: the last KEPT)
-REALIGN = 8                     # SYNCs a TPDO count may lag before it is realigned
 STATS = 100_000                 # cycles of latency kept for the benchmark
 
 
@@ -88,9 +87,10 @@ class AxisNodes:
 class _Slot:
     """The frames of one TPDO, by the SYNC they answer: a drive answers every SYNC, in order,
     from the first after its NMT start (CAN delivers every frame, in order, or goes bus-off), so
-    the m-th frame answers the m-th SYNC, however late it comes. A count that falls more than
-    REALIGN SYNCs behind those sent before the frame came (frames lost to an overrun) is
-    realigned to the last SYNC sent."""
+    the m-th frame answers the m-th SYNC, however late it comes (a sample more than KEPT SYNCs
+    old is not used). A count ahead of the SYNCs sent (frames that answer no SYNC of ours) is
+    realigned to the last SYNC sent. (A frame lost, which CAN does not do but an overrun
+    adapter may, would leave every later sample stamped one period old.)"""
     __slots__ = ('frames', 'count', 'realigned')
 
     def __init__(self) -> None:
@@ -362,9 +362,8 @@ class CanopenHardware(HardwareInterface):
     def _receiver(self, slot: _Slot):
         def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
             n = slot.count + 1
-            sent = self.sync_count
-            if not sent - REALIGN <= n <= sent:
-                n = sent
+            if n > self.sync_count:
+                n = self.sync_count
                 slot.realigned += 1
             slot.count = n
             slot.frames.append((n, bytes(data), time.monotonic()))
