@@ -49,8 +49,9 @@ class Bench:
             tick = self.loop.cycle(self.t)
             if tick is not None:
                 lines += tick.log
-            if wait:
-                self.hw.wait_for_samples(1.0)
+            if wait:           # (lockstep: the drives answer every SYNC; a loaded machine
+                # can hold their thread up for a while, never this long)
+                assert self.hw.wait_for_samples(10.0), f'no answer to SYNC {self.hw.sync_count}'
             self.t = round(self.t + self.T, 9)
         return lines
 
