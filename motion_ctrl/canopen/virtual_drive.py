@@ -378,6 +378,7 @@ class VirtualDrives:
         self.lock = threading.Lock()        # the drives' state, against the ROS shell's reads
         self.syncs = 0
         self.sampled: tuple[float, list[float], list[float], list[float]] | None = None
+        self.free = False                   # the drives' own clock runs the slides
         self.free_steps = 0                 # periods the drives' own clock ran (no SYNC)
         self._last_step = time.monotonic()
         self._stop = threading.Event()
@@ -441,6 +442,7 @@ class VirtualDrives:
                 n.nmt_changed()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self.free = False
         with self.lock:
             self.syncs += 1
             # (timestamp: when the frame came in, on time.time()'s clock for udp_multicast,
@@ -454,18 +456,22 @@ class VirtualDrives:
 
     def _run_clock(self) -> None:
         """The bus was quiet for RECEIVE_SLICE: without SYNC for FREE_RUN the slides run on in
-        real time, a period a step (the watchdog counts them: a dead master's drives fault and
-        brake)."""
+        real time from the last SYNC, a period a step, until a SYNC comes (the watchdog counts
+        the periods: a dead master's drives fault and brake)."""
         now = time.monotonic()
-        late = now - self._last_step
-        if late < FREE_RUN:
+        if not self.free and now - self._last_step < FREE_RUN:
+            return
+        self.free = True
+        T = min(ax.period for ax in self.axes.values())
+        steps = min(int((now - self._last_step) / T), 1000)
+        if not steps:
             return
         with self.lock:
-            for ax in self.axes.values():
-                for _ in range(min(int(late / ax.period), 1000)):
-                    ax.step(ax.period)
-                    self.free_steps += 1
-        self._last_step = now
+            for _ in range(steps):
+                for ax in self.axes.values():
+                    ax.step(T)
+            self.free_steps += steps
+        self._last_step += steps * T
 
     # -- what the ROS shell and tests use ---------------------------------------------------------
     def inject_fault(self, axis: str, code: int) -> None:
@@ -485,7 +491,7 @@ class VirtualDrives:
         (time [s], positions, velocities [m, m/s] (motor then load, axis by axis:
         plant_states' order), the volts each amplifier applied)."""
         with self.lock:
-            if self.sampled is not None and time.monotonic() - self._last_step < FREE_RUN:
+            if self.sampled is not None and not self.free:
                 return self.sampled
             return (time.time(), *self._state())
 
