@@ -19,11 +19,11 @@ What a drive on the bus does, emulated:
   the drive faults with 8250h (RPDO timeout, CiA 301): EMCY, statusword fault bit, 603Fh, and
   the fault reaction, torque 0 and the dynamic brake (the plant's amplifier watchdog). The SYNC
   is the slide's clock (the controller counts its time in SYNCs too, so a late SYNC stretches a
-  cycle for both); with no SYNC for FREE_RUN s, and no frame at all for as long (an emulated
+  cycle for both); with no SYNC for FREE_RUN (0.1 s; a bus quiet for RECEIVE_SLICE: an emulated
   drive that is merely behind with its frames is not without a master), the drive's own clock
   takes over: it runs the slide in real time from the last SYNC on, the watchdog counting those
   periods too: a dead master stops the SYNCs, not the slide. A master killed at 0.1 m/s:
-  command_timeout on the last torque (1 mm), then the brake (1 mm);
+  command_timeout on the last torque (1 mm), then the brake (1 mm), in the slide's time;
 * every SYNC is answered, in order, also when the emulated drive's process was held up and
   answers late (the master counts the frames: the m-th answers the m-th SYNC);
 * quick stop (605Ah): the drive's own velocity loop brakes the motor at 6085h, then (options
@@ -53,9 +53,12 @@ DEVICE_TYPE_DRIVE = 0x00020192      # CiA 402, servo drive
 DEVICE_TYPE_ENCODER = 0x00080196    # CiA 406
 CST_ONLY = 1 << c.SUPPORTED_MODE_BIT[c.CST]
 DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
-# s without a SYNC after which the drive's own clock runs the slide (from the last SYNC on):
-# longer than the stalls of a master on a loaded machine (README, Performance: multi-ms)
-FREE_RUN = 0.02
+# s without a SYNC after which the master is taken for dead and the drive's own clock runs the
+# slide, from the last SYNC on (so the watchdog trips command_timeout after the last RPDO in the
+# slide's time, whenever this is decided): longer than the stalls of a master on a loaded
+# machine (README, Performance: multi-ms, now and then tens of ms), which freeze the emulated
+# slide instead (the SYNC is its clock)
+FREE_RUN = 0.1
 RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look
 HEARTBEAT_MS = 100                  # producer heartbeat at boot-up (the master may change it)
 RPDO_TIMEOUT = 0x8250
