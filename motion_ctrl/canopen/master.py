@@ -41,6 +41,7 @@ PRE-OPERATIONAL.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import threading
 import time
@@ -220,16 +221,22 @@ class CanopenHardware(HardwareInterface):
         node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT
         network.add_node(node)
         end = time.monotonic() + self.boot_timeout
-        while True:                 # a node still booting answers its first SDO late
-            try:
-                device = self._sdo_read(node, a, what, c.DEVICE_TYPE, 0, 'device type')
-                break
-            except HardwareError as e:
-                if 'does not answer' not in str(e) or time.monotonic() > end:
-                    if 'does not answer' in str(e):
-                        raise HardwareError(f'{e}, nor in the {self.boot_timeout:g} s a node '
-                                            f'may take to boot') from None
-                    raise
+        sdo_log = logging.getLogger('canopen.sdo.client')
+        level = sdo_log.level
+        sdo_log.setLevel(logging.CRITICAL)  # (each unanswered try logs an abort: said once below)
+        try:
+            while True:             # a node still booting answers its first SDO late
+                try:
+                    device = self._sdo_read(node, a, what, c.DEVICE_TYPE, 0, 'device type')
+                    break
+                except HardwareError as e:
+                    if 'does not answer' not in str(e) or time.monotonic() > end:
+                        if 'does not answer' in str(e):
+                            raise HardwareError(f'{e}, nor in the {self.boot_timeout:g} s a '
+                                                f'node may take to boot') from None
+                        raise
+        finally:
+            sdo_log.setLevel(level)
         node.nmt.state = 'PRE-OPERATIONAL'
         return node, device
 
