@@ -68,6 +68,7 @@ ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
 NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
 KEPT = 8                        # frames kept per TPDO (their SYNCs: the last KEPT)
+WINDOW = 200                    # frames over which a TPDO count's lag is judged
 STATS = 100_000                 # cycles of latency kept for the benchmark
 
 
@@ -89,21 +90,47 @@ class _Slot:
     """The frames of one TPDO, by the SYNC they answer: a drive answers every SYNC, in order,
     from the first after its NMT start (CAN delivers every frame, in order, or goes bus-off), so
     the m-th frame answers the m-th SYNC, however late it comes (a sample more than KEPT SYNCs
-    old is not used). A count ahead of the SYNCs sent (frames that answer no SYNC of ours) is
-    realigned to the last SYNC sent. (A frame lost, which CAN does not do but an overrun
-    adapter may, would leave every later sample stamped one period old.)"""
-    __slots__ = ('frames', 'count', 'realigned')
+    old is not used).
+
+    Two checks keep the count right when frames are lost after all (an adapter's overrun, an
+    emulated bus's datagrams): a count ahead of the SYNCs sent is set back to the last one; and
+    when every frame of a WINDOW came at least one SYNC after the one its count names (the
+    count lags: a late frame comes late now and then, not always), the count moves on by the
+    least of those lags."""
+    __slots__ = ('frames', 'count', 'realigned', 'lag', 'seen')
 
     def __init__(self) -> None:
         self.frames: deque = deque(maxlen=KEPT)     # (SYNC count, data, arrival [s])
         self.count = 0
         self.realigned = 0
+        self.lag = 1 << 30              # the least lag of the frames of this window
+        self.seen = 0                   # frames of this window
+
+    def counted(self, after: int, sent: int) -> int:
+        """The SYNC the next frame answers, `after` being the last SYNC sent before it came
+        and `sent` the SYNCs sent so far."""
+        n = self.count + 1
+        self.lag = min(self.lag, after - n)
+        self.seen += 1
+        if self.seen >= WINDOW:
+            if self.lag > 0:
+                n += self.lag
+                self.realigned += 1
+            self.lag, self.seen = 1 << 30, 0
+        if n > sent:
+            n = sent
+            self.realigned += 1
+        self.count = n
+        return n
 
     def newest(self) -> tuple[int, bytes, float] | None:
-        return self.frames[-1] if self.frames else None
+        frames = list(self.frames)
+        return frames[-1] if frames else None
 
     def answering(self, n: int) -> tuple[int, bytes, float] | None:
-        for frame in reversed(self.frames):
+        # (list(): a copy made in one C call, which the receive thread's appends cannot
+        # interleave; a Python loop over the deque itself can meet one)
+        for frame in reversed(list(self.frames)):
             if frame[0] == n:
                 return frame
         return None
@@ -168,6 +195,7 @@ class CanopenHardware(HardwareInterface):
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
         self._to_rpdo: list[float] = []     # SYNC -> the RPDO computed from its samples
+        self._sync_wall: deque = deque(maxlen=KEPT * 4)     # (time.time() at send, count)
 
     # -- the bus's figures ---------------------------------------------------------------------
     @property
@@ -368,13 +396,21 @@ class CanopenHardware(HardwareInterface):
 
     def _receiver(self, slot: _Slot):
         def on_frame(can_id: int, data: bytearray, timestamp: float) -> None:
-            n = slot.count + 1
-            if n > self.sync_count:
-                n = self.sync_count
-                slot.realigned += 1
-            slot.count = n
+            n = slot.counted(self._sent_before(timestamp), self.sync_count)
             slot.frames.append((n, bytes(data), time.monotonic()))
         return on_frame
+
+    def _sent_before(self, timestamp: float) -> int:
+        """The last SYNC sent before a frame that came at `timestamp` (time.time()'s clock, as
+        the virtual, udp_multicast and socketcan interfaces stamp; a stamp on another clock,
+        as some adapters' own, counts as now)."""
+        sent = self._sync_wall
+        if sent and sent[0][0] - 1.0 < timestamp < time.time() + 0.01:
+            for wall, k in reversed(list(sent)):
+                if wall <= timestamp:
+                    return k
+            return sent[0][1] - 1
+        return self.sync_count
 
     def _watch(self, node, x: _Axis) -> None:
         nid = node.id
@@ -461,7 +497,7 @@ class CanopenHardware(HardwareInterface):
         k, data, arrived = tp
         sw, motor, code = TPDO1.codec.unpack(data)
         x.statusword, x.error_code = sw, code
-        for k, data, arrived in reversed(x.tpdo1.frames):
+        for k, data, arrived in reversed(list(x.tpdo1.frames)):
             if k <= x.used:
                 return None
             ld = x.load.answering(k)
@@ -522,6 +558,7 @@ class CanopenHardware(HardwareInterface):
         if self._sync_sent:
             self._intervals.append(sent - self._sync_sent)
         self._sync_sent = sent
+        self._sync_wall.append((time.time(), self.sync_count))
         network.send_message(0x80, b'')
 
     def _controlword(self, x: _Axis) -> int:
