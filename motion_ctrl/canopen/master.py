@@ -192,6 +192,7 @@ class CanopenHardware(HardwareInterface):
         self.cycles = 0
         self._started = 0.0
         self._axes: dict = {}               # the servo loop's axes (watch): their status
+        self._said: set[str] = set()        # what went wrong, logged once
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
         self._to_rpdo: list[float] = []     # SYNC -> the RPDO computed from its samples
@@ -456,6 +457,20 @@ class CanopenHardware(HardwareInterface):
 
     # -- the cycle -------------------------------------------------------------------------------
     def read(self, now: float, sink: FeedbackSink) -> None:
+        try:
+            self._read(sink)
+        except Exception as e:      # the servo loop never dies of its I/O: a link fault
+            reason = f'canopen: reading the bus failed: {e!r}'
+            self._once('error', reason)
+            for a in self.axes:
+                sink.fault(a, LINK, reason)
+
+    def _once(self, level: str, text: str) -> None:
+        if text not in self._said:
+            self._said.add(text)
+            self._log(level, text)
+
+    def _read(self, sink: FeedbackSink) -> None:
         n = self.sync_count
         self.cycles += 1
         complete = True
@@ -531,6 +546,13 @@ class CanopenHardware(HardwareInterface):
                                     f'{_NMT.get(state, state)})')
 
     def write(self, now: float, names: list[str], outputs: list[float]) -> None:
+        try:
+            self._write(now, names, outputs)
+        except Exception as e:      # (a full send queue, a bus gone): the next cycle tries
+            self._once('error', f'canopen: sending failed (logged once): {e!r}; the drives\' '
+                                f'watchdogs stop them if it lasts')
+
+    def _write(self, now: float, names: list[str], outputs: list[float]) -> None:
         network = self.network
         if network is None:
             return
