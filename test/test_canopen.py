@@ -273,6 +273,20 @@ def test_a_missing_drive_is_a_missing_sample_then_a_feedback_fault(benches):
     assert lines[0][1].startswith('x: FEEDBACK_FAULT: no new encoder sample for 21 ms'), lines
 
 
+def test_a_malformed_frame_is_a_link_fault_not_the_end_of_the_loop(benches):
+    b = benches({'x': DriveConfig(1)})
+    b.hw.activate()
+    b.run(0.02)
+    b.drives.network.send_message(0x181, b'\x01\x02\x03')   # a 3-byte TPDO1
+    time.sleep(0.05)
+    lines = b.run(0.002, wait=False)
+    ax = b.axes['x']
+    assert ax.status & Status.FEEDBACK_FAULT and not ax.enabled
+    assert lines[0][1].startswith("x: FEEDBACK_FAULT: canopen: reading the bus failed: "
+                                  "error('unpack requires a buffer of 8 bytes')"), lines
+    assert sum('reading the bus failed' in text for _, text in b.log) == 1
+
+
 @pytest.mark.parametrize('drive, nodes, line', [
     (None, None, 'canopen: node 1 (x drive) does not answer: no SDO response to 1000h '
                  '(device type) in 0.3 s, nor in the 0.5 s a node may take to boot'),
