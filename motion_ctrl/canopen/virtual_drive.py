@@ -50,7 +50,6 @@ from motion_ctrl.canopen.objects import (DRIVE_EDS, ENCODER_EDS, PDO_NOT_VALID, 
 from motion_ctrl.sim.plant import TWO_PI, SlidePlant
 
 DEVICE_TYPE_DRIVE = 0x00020192      # CiA 402, servo drive
-DEVICE_TYPE_ENCODER = 0x00080196    # CiA 406
 CST_ONLY = 1 << c.SUPPORTED_MODE_BIT[c.CST]
 DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
 # s without a SYNC after which the master is taken for dead and the drive's own clock runs the
