@@ -65,6 +65,7 @@ HEARTBEAT_LOST = 2.5            # heartbeat periods without one: the node is los
 SDO_TIMEOUT = 0.3               # s for an SDO answer (canopen's default)
 BOOT_TIMEOUT = 5.0              # s a node may take to answer its first SDO (it may be booting)
 ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
+START_TIMEOUT = 2.0             # s for a node to say OPERATIONAL after its NMT start
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
 NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
 KEPT = 8                        # frames kept per TPDO (their SYNCs: the last KEPT)
@@ -153,6 +154,7 @@ class _Axis:
         self.reset_pending = False
         self.ignore_fault_until = -1        # SYNC count: a FAULT sampled before is stale
         self.heartbeat: dict[int, tuple[float, int]] = {}   # node id -> (arrival, NMT state)
+        self.operational: set[int] = set()  # nodes whose heartbeat said OPERATIONAL
         self.emcy: deque = deque(maxlen=16)  # (node id, code, register) not yet logged
         self.fault: str | None = None       # the DRIVE fault being reported
         self.quick_stop = False             # the drive is told to quick-stop (an ESTOP)
@@ -431,7 +433,7 @@ class CanopenHardware(HardwareInterface):
             for node in (x.node, x.encoder):
                 if node is not None:
                     node.nmt.state = 'OPERATIONAL'
-                    x.heartbeat[node.id] = (now, 5)
+                    x.heartbeat[node.id] = (now, x.heartbeat[node.id][1])
         self._started = now
 
     def on_deactivate(self) -> None:
@@ -538,11 +540,16 @@ class CanopenHardware(HardwareInterface):
 
     def _link(self, a: str, x: _Axis, mono: float, sink: FeedbackSink) -> None:
         for nid, (t, state) in x.heartbeat.items():
+            if state == 5:
+                x.operational.add(nid)
             if mono - t > HEARTBEAT_LOST * HEARTBEAT_MS / 1000:
                 sink.fault(a, LINK, f'node {nid}: no heartbeat for {(mono - t) * 1e3:.0f} ms')
-            elif state != 5 and t - self._started > HEARTBEAT_MS / 1000:
-                # (a heartbeat sent before the NMT start may still say PRE-OPERATIONAL)
+            elif state != 5 and nid in x.operational:
                 sink.fault(a, LINK, f'node {nid} left OPERATIONAL (heartbeat: NMT state '
+                                    f'{_NMT.get(state, state)})')
+            elif state != 5 and mono - self._started > START_TIMEOUT:
+                sink.fault(a, LINK, f'node {nid} is not OPERATIONAL {START_TIMEOUT:g} s after '
+                                    f'its NMT start (heartbeat: NMT state '
                                     f'{_NMT.get(state, state)})')
 
     def write(self, now: float, names: list[str], outputs: list[float]) -> None:
