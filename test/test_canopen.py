@@ -273,6 +273,24 @@ def test_a_missing_drive_is_a_missing_sample_then_a_feedback_fault(benches):
     assert lines[0][1].startswith('x: FEEDBACK_FAULT: no new encoder sample for 21 ms'), lines
 
 
+def test_a_drive_that_rebooted_is_a_link_fault(benches):
+    """Its heartbeat says PRE-OPERATIONAL (the boot-up of a drive that reset): FEEDBACK_FAULT
+    naming the node, while its last TPDOs would still look fine."""
+    b = benches({'x': DriveConfig(1)})
+    b.hw.activate()
+    b.run(0.02)
+    time.sleep(0.25)                                # its heartbeat said OPERATIONAL meanwhile
+    b.run(0.002)
+    node = b.drives.axes['x'].drive.node
+    node.nmt.send_command(0x81)                     # reset: boot-up, then PRE-OPERATIONAL
+    node.nmt.send_command(0x80)
+    time.sleep(0.25)
+    lines = b.run(0.002, wait=False)
+    assert b.axes['x'].status & Status.FEEDBACK_FAULT
+    assert lines[0][1] == ('x: FEEDBACK_FAULT: node 1 left OPERATIONAL (heartbeat: NMT state '
+                           'PRE-OPERATIONAL); loop opened, call x/reset'), lines
+
+
 def test_a_malformed_frame_is_a_link_fault_not_the_end_of_the_loop(benches):
     b = benches({'x': DriveConfig(1)})
     b.hw.activate()
