@@ -1,10 +1,15 @@
 """Controller + simulated backlash slide.
 
 ros2 launch motion_ctrl slide.launch.py [controller_params:=FILE]
-    [plant_params:=FILE] [use_sim_time:=true|false] [axes:=x,y]
+    [plant_params:=FILE] [use_sim_time:=true|false] [axes:=x,y] [hardware:=topics|sim]
 
-use_sim_time:=true runs the deterministic lockstep simulation: the plant (lockstep: 1) is the
-/clock and the controller runs on it, ticking on each encoder sample.
+hardware:=topics (the default): the plant node and the controller, exchanging `encoders` and
+`command`. hardware:=sim: the controller alone, the slide simulated inside its loop (configured
+by plant_params' plant: section).
+
+use_sim_time:=true runs the deterministic lockstep simulation: with topics the plant
+(lockstep: 1) is the /clock and the controller runs on it, ticking on each encoder sample; with
+sim the controller is the clock, ticking as fast as the machine allows.
 
 axes:=x,y (or "[x, y]") sets both nodes' `axes` over the params files. The names go to the nodes
 quoted: ROS's YAML parser reads y, n, on, off as booleans.
@@ -44,6 +49,10 @@ def generate_launch_description():
             'axes', default_value='',
             description='Axis names for both nodes, comma-separated (x,y); empty: as the '
                         'params files say'),
+        DeclareLaunchArgument(
+            'hardware', default_value='topics', choices=['topics', 'sim'],
+            description='topics: plant node + controller; sim: the controller alone, the '
+                        'slide simulated in its loop'),
         OpaqueFunction(function=nodes, args=[use_sim_time, lockstep]),
     ])
 
@@ -63,6 +72,16 @@ def axes_file(context) -> list:
 
 def nodes(context, use_sim_time, lockstep):
     axes = axes_file(context)
+    if LaunchConfiguration('hardware').perform(context) == 'sim':
+        return [Node(
+            package='motion_ctrl',
+            executable='controller',
+            name='controller',
+            parameters=[LaunchConfiguration('controller_params'),
+                        LaunchConfiguration('plant_params'), *axes,
+                        {'use_sim_time': use_sim_time, 'hardware': 'sim'}],
+            output='screen',
+        )]
     return [
         Node(
             package='motion_ctrl',

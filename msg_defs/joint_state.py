@@ -98,7 +98,7 @@ class JointStateStream(Stream):
     def __init__(self, publisher, on_error=None, refresh: float = 0.0):
         super().__init__(publisher, on_error, refresh)
         self.msg = JointState()
-        self.names = None
+        self.names: list | None = None
 
     def publish(self, stamp, names, position=(), velocity=(), effort=()) -> None:
         if not self.wanted():

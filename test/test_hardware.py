@@ -18,15 +18,16 @@ T = 1e-3
 
 
 class Recording(HardwareInterface):
-    """Encoders that read where the last output would put a perfect axis; every call noted."""
+    """Encoders that read 0; every call noted, and the amplifier enables as a drive with an
+    enable sequence would see them (on a change of the loop's state)."""
 
     kind = 'recording'
 
     def __init__(self, axes):
         super().__init__(axes)
         self.calls = []
-        self.faults = {}                    # axis -> (kind, reason) reported on every read
-        self.counts = {a: (0, 0) for a in self.axes}
+        self.faults = {}                    # axis -> (kind, reason), set on every read
+        self.amplifier = {a: False for a in self.axes}
 
     def on_configure(self):
         self.calls.append('configure')
@@ -37,18 +38,18 @@ class Recording(HardwareInterface):
     def on_deactivate(self):
         self.calls.append('deactivate')
 
-    def read(self, now, sink):
+    def read(self, now):
         self.calls.append(('read', now))
-        for a in self.axes:
-            if a in self.faults:
-                sink.fault(a, *self.faults[a])
-            sink.feedback(a, *self.counts[a], now)
+        for a, io in self.io.items():
+            io.fault_kind, io.fault_reason = self.faults.get(a, ('', ''))
+            io.sample(0, 0, now)
 
-    def write(self, now, names, outputs):
-        self.calls.append(('write', now, list(names)))
-
-    def enable(self, axis, on):
-        self.calls.append(('enable', axis, on))
+    def write(self, now):
+        for a, io in self.io.items():
+            if io.commanded and io.enabled != self.amplifier[a]:
+                self.amplifier[a] = io.enabled
+                self.calls.append(('enable', a, io.enabled))
+        self.calls.append(('write', now, [a for a, io in self.io.items() if io.commanded]))
 
     def reset(self, axis):
         self.calls.append(('reset', axis))
@@ -60,7 +61,7 @@ def loop_on(hardware, axes=('x',)):
                      hardware=hardware)
 
 
-def test_a_cycle_reads_ticks_enables_and_writes_in_that_order():
+def test_a_cycle_reads_ticks_and_writes_in_that_order():
     hw = Recording(['x'])
     hw.activate()
     loop = loop_on(hw)
@@ -159,36 +160,32 @@ def test_a_bad_plant_register_is_refused_at_configure_naming_the_axis():
 def test_sim_steps_one_period_per_write_like_the_plant_on_a_held_command():
     hw = sim()
     ref = SlidePlant()
-    seen = []
-
-    class Sink:
-        def feedback(self, a, m, l, stamp):
-            seen.append((m, l, stamp))
-
-        def fault(self, *args):
-            raise AssertionError(args)
-
+    io = hw.io['x']
+    io.output, io.commanded = 2.0, True
+    stamps = []
     for k in range(50):
-        hw.read(k * T, Sink())
-        hw.write(k * T, ['x'], [2.0])
+        hw.read(k * T)
+        stamps.append(io.stamp)
+        assert (io.motor, io.load) == ref.encoder_counts()
+        hw.write(k * T)
         ref.command(2.0)
         ref.advance(T, T)
     assert hw.plants['x'].x_m == ref.x_m and hw.plants['x'].x_l == ref.x_l
-    assert [s[2] for s in seen] == [k * T for k in range(50)]
+    assert stamps == [k * T for k in range(50)]
 
 
 def test_a_late_tick_integrates_its_lateness_on_the_held_command():
     hw = sim()
     ref = SlidePlant()
-    sink = type('S', (), {'feedback': lambda *a: None, 'fault': lambda *a: None})()
-    hw.read(0.0, sink)
-    hw.write(0.0, ['x'], [3.0])
+    hw.read(0.0)
+    hw.io['x'].output, hw.io['x'].commanded = 3.0, True
+    hw.write(0.0)
     ref.command(3.0)
     ref.advance(T, T)
-    hw.read(T + 0.004, sink)          # held up 4 ms
+    hw.read(T + 0.004)                # held up 4 ms
     ref.advance(0.004, T)
     assert hw.plants['x'].x_m == ref.x_m
-    assert hw.time == pytest.approx(T + 0.004)
+    assert hw.time == pytest.approx(T + 0.004) and hw.io['x'].stamp == hw.time
 
 
 def test_an_axis_left_without_commands_trips_its_watchdog_and_brakes():
@@ -199,8 +196,9 @@ def test_an_axis_left_without_commands_trips_its_watchdog_and_brakes():
     y = hw.plants['y']
     y.command(2.0)
     y.v_m = y.v_l = 0.05                          # moving when its commands stop
+    hw.io['x'].output, hw.io['x'].commanded = 0.5, True
     for k in range(100):
-        hw.write(k * T, ['x'], [0.5])
+        hw.write(k * T)
         if k == 8:
             assert hw.tripped() == [False, False] and hw.applied() == [0.5, 2.0]
     assert hw.tripped() == [False, True]

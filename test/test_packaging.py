@@ -18,7 +18,7 @@ PACKAGE = 'motion_ctrl'
 EXPECTED_NAMES = {'controller', 'plant', 'notch', 'demo', 'scenarios', 'tune', 'benchmark',
                   'record', 'report', 'soak', 'draw', 'calibrate', 'identify', 'autotune',
                   'virtual_drive'}
-LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time', 'axes'}
+LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time', 'axes', 'hardware'}
 
 
 def _setup_kwargs(monkeypatch, cwd, argv):

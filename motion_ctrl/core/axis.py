@@ -20,6 +20,8 @@ The per-tick path works on values cached at configure time and on plain-int stat
 """
 from __future__ import annotations
 
+from typing import Final
+
 from msg_defs.status import Status
 from motion_ctrl.core.backlash import BacklashCompensation
 from motion_ctrl.core.dual_loop import SampledCorrection, feedback_encoders
@@ -33,25 +35,25 @@ from motion_ctrl.core.servo_law import ServoLaw
 from motion_ctrl.core.settling import Settling, status_word
 
 # Status bits as plain ints for the servo tick.
-_ENABLED = int(Status.ENABLED)
-_MOVING = int(Status.MOVING)
-_DONE = int(Status.MOTION_DONE)
-_FE_WARNING = int(Status.FOLLOWING_ERROR_WARNING)
-_FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
-_SATURATED = int(Status.OUTPUT_SATURATED)
-_INTEGRATOR_HELD = int(Status.INTEGRATOR_HELD)
-_BACKLASH = int(Status.BACKLASH_ACTIVE)
-_FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
-_LIMIT = int(Status.LIMIT)
-_CORRECTING = int(Status.CORRECTING)
-_AT_VELOCITY = int(Status.MOTION_AT_VELOCITY)
+_ENABLED: Final = int(Status.ENABLED)
+_MOVING: Final = int(Status.MOVING)
+_DONE: Final = int(Status.MOTION_DONE)
+_FE_WARNING: Final = int(Status.FOLLOWING_ERROR_WARNING)
+_FE_FATAL: Final = int(Status.FOLLOWING_ERROR_FATAL)
+_SATURATED: Final = int(Status.OUTPUT_SATURATED)
+_INTEGRATOR_HELD: Final = int(Status.INTEGRATOR_HELD)
+_BACKLASH: Final = int(Status.BACKLASH_ACTIVE)
+_FEEDBACK_FAULT: Final = int(Status.FEEDBACK_FAULT)
+_LIMIT: Final = int(Status.LIMIT)
+_CORRECTING: Final = int(Status.CORRECTING)
+_AT_VELOCITY: Final = int(Status.MOTION_AT_VELOCITY)
 
-_S_IDLE = SampledCorrection.IDLE
-_S_CORRECTING = SampledCorrection.CORRECTING
+_S_IDLE: Final = SampledCorrection.IDLE
+_S_CORRECTING: Final = SampledCorrection.CORRECTING
 
 # Status words kept in Axis.events when the caller asks for them (harness, tools): a bound, so a
 # long run does not keep every change (~75 bytes each).
-EVENTS_KEPT = 100_000
+EVENTS_KEPT: Final = 100_000
 
 
 class Axis(AxisCommands):
@@ -120,20 +122,20 @@ class Axis(AxisCommands):
         self._motor_side = feedback_encoders(feedback)[0] == 'motor'
         self._vel_on_load = feedback == 'load'
         self._sampled_fb = feedback == 'sampled'
-        self._motor_cpm = r['motor_counts_per_m']
-        self._load_cpm = r['load_counts_per_m']
+        self._motor_cpm: float = r['motor_counts_per_m']
+        self._load_cpm: float = r['load_counts_per_m']
         # RMC: anti-hunting below half a raw count. Inclusive (by a hair): a target halfway
         # between two counts can be held from either, so the integrator must stop there too.
         self._half = 0.5 * (1 + 1e-6) / (self._motor_cpm if self._motor_side else self._load_cpm)
-        self._fe_fatal = r['following_error_fatal']
-        self._fe_warn = r['following_error_warning']
-        self._soft_lo = r['soft_limit_min']
-        self._soft_hi = r['soft_limit_max']
-        self._max_vel = r['max_velocity']
-        self._max_acc = r['max_acceleration']
-        self._max_jerk = r['max_jerk']
-        self._stop_dec = r['stop_deceleration']
-        self._estop_dec = r['estop_deceleration']
+        self._fe_fatal: float = r['following_error_fatal']
+        self._fe_warn: float = r['following_error_warning']
+        self._soft_lo: float = r['soft_limit_min']
+        self._soft_hi: float = r['soft_limit_max']
+        self._max_vel: float = r['max_velocity']
+        self._max_acc: float = r['max_acceleration']
+        self._max_jerk: float = r['max_jerk']
+        self._stop_dec: float = r['stop_deceleration']
+        self._estop_dec: float = r['estop_deceleration']
         if old and old['feedback'] != feedback and self.homed:
             self._rehome_command()
 
@@ -203,7 +205,7 @@ class Axis(AxisCommands):
         self.profile.move_to(self.target + self.sampled_offset)
         self.settling.start_position_move(self.target + self.sampled_offset)
 
-    def home(self, motor_counts: int, load_counts: int) -> None:
+    def home(self, motor_counts: float, load_counts: float) -> None:
         """First feedback: take the encoders as they are and close the loop there (unless a
         fault came first: then it stays open until reset and enable)."""
         self.motor_pos = motor_counts / self._motor_cpm
@@ -243,8 +245,8 @@ class Axis(AxisCommands):
         self._recompose()
 
     # -- the servo tick -------------------------------------------------------------------------
-    def update(self, dt: float, motor_counts, load_counts, sample_dt: float | None = None,
-               age: float = 0.0) -> float:
+    def update(self, dt: float, motor_counts: float, load_counts: float,
+               sample_dt: float | None = None, age: float = 0.0) -> float:
         """One servo tick with the latest encoder counts; returns the amplifier command [V].
 
         sample_dt: time between this encoder sample and the previous one (from their stamps),
@@ -277,7 +279,7 @@ class Axis(AxisCommands):
         return out
 
     # The stages of the tick, in order.
-    def _read_encoders(self, motor_counts, load_counts, sample_dt: float) -> None:
+    def _read_encoders(self, motor_counts: float, load_counts: float, sample_dt: float) -> None:
         """1. Both encoders; velocity and acceleration over the time the sample covers."""
         motor_pos = motor_counts / self._motor_cpm
         load_pos = load_counts / self._load_cpm

@@ -49,6 +49,8 @@ first); at rest they apply.
 """
 from __future__ import annotations
 
+from typing import Final
+
 import math
 import numbers
 
@@ -59,10 +61,10 @@ from motion_ctrl.core.gather import Gather, base_motion
 from motion_ctrl.core.profile import Profile
 from motion_ctrl.core.settling import Settling
 
-_DONE = int(Status.MOTION_DONE)
-_LIMIT = int(Status.LIMIT)
+_DONE: Final = int(Status.MOTION_DONE)
+_LIMIT: Final = int(Status.LIMIT)
 # Stop levels of the command precedence (a move or jog is 0, ABORT opens the loop).
-_STOP_LEVEL = {'stop': 1, 'estop': 2}
+_STOP_LEVEL: Final = {'stop': 1, 'estop': 2}
 
 
 def _number(x) -> bool:

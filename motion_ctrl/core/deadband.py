@@ -54,10 +54,12 @@ def output_deadband(output, deadband, error, tolerance, target_stopped, position
     """
     _check_non_negative('deadband', deadband)
     _check_non_negative('tolerance', tolerance)
-    return apply_deadband(output, deadband, error, tolerance, target_stopped, position_mode)
+    return apply_deadband(output, deadband, error, tolerance, bool(target_stopped),
+                          bool(position_mode))
 
 
-def apply_deadband(output, deadband, error, tolerance, target_stopped, position_mode):
+def apply_deadband(output: float, deadband: float, error: float, tolerance: float,
+                   target_stopped: bool, position_mode: bool) -> float:
     """output_deadband without the argument checks: for the servo tick, whose registers were
     validated when they were set."""
     if output == 0 or deadband == 0:
@@ -82,10 +84,11 @@ def anti_hunting(target_stopped, error, tolerance, half_count):
     """
     _check_non_negative('tolerance', tolerance)
     _check_non_negative('half_count', half_count)
-    return in_anti_hunting_window(target_stopped, error, tolerance, half_count)
+    return in_anti_hunting_window(bool(target_stopped), error, tolerance, half_count)
 
 
-def in_anti_hunting_window(target_stopped, error, tolerance, half_count):
+def in_anti_hunting_window(target_stopped: bool, error: float, tolerance: float,
+                           half_count: float) -> bool:
     """anti_hunting without the argument checks (the servo tick's registers are validated)."""
     if not target_stopped:
         return False
@@ -93,7 +96,7 @@ def in_anti_hunting_window(target_stopped, error, tolerance, half_count):
     return err < tolerance or err < half_count
 
 
-def limit_integral_to_wind_down(previous, proposed):
+def limit_integral_to_wind_down(previous: float, proposed: float) -> float:
     """Integral term allowed while anti-hunting is active: it may only move toward zero.
 
     Returns ``proposed`` when it has the same sign as ``previous`` and no larger magnitude,

@@ -28,8 +28,8 @@ from typing import Final
 from msg_defs.status import Status
 from motion_ctrl.core.config import CorrectionConfig, defaults
 
-_DONE = int(Status.MOTION_DONE)
-_IN_FINE = int(Status.IN_FINE_POSITION)
+_DONE: Final = int(Status.MOTION_DONE)
+_IN_FINE: Final = int(Status.IN_FINE_POSITION)
 
 
 def feedback_encoders(feedback: str) -> tuple[str, str]:
@@ -38,9 +38,9 @@ def feedback_encoders(feedback: str) -> tuple[str, str]:
             'dual': ('load', 'motor'), 'sampled': ('motor', 'motor')}[feedback]
 
 
-STILL_FACTOR = 5
+STILL_FACTOR: Final = 5
 # Corrections end when the load error exceeds this many times the first one (a runaway).
-DIVERGED = 4
+DIVERGED: Final = 4
 
 
 class SampledCorrection:

@@ -20,6 +20,8 @@ distance — is kept in hand, so the slide stops inside the budget). Plain Pytho
 """
 from __future__ import annotations
 
+from typing import Final
+
 import math
 
 import numpy as np
@@ -28,7 +30,7 @@ from motion_ctrl.core.excitation import Excitation
 from motion_ctrl.core.soft_limits import stopping_distance
 
 # The records, one column each, in this order.
-COLUMNS = ('excitation', 'output', 'motor', 'load', 'command')
+COLUMNS: Final = ('excitation', 'output', 'motor', 'load', 'command')
 
 
 def base_motion(v: float, seconds: float, budget: float, start: float,

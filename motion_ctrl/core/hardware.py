@@ -4,18 +4,18 @@ on_configure / on_activate / on_deactivate, `read()` and `write()` around the co
 `update()`), LinuxCNC's HAL pins read and written by the servo thread, and PMAC's servo interrupt
 (read the encoders, compute, write the DACs) keep it.
 
-Each tick `ServoLoop.cycle` runs, on the servo thread:
+Each axis has an `AxisIO`, shared by the backend and the loop (ros2_control's state and command
+interfaces of a joint): its state, written by the backend, is the newest encoder sample (motor
+counts, load counts, the sample's stamp [s]) and the drive's fault, if any; its command, written
+by the loop's tick, is the output [V], whether the tick commanded the axis at all, and whether
+the axis's loop is closed (the amplifier's enable, as PMAC's amplifier-enable output follows the
+motor's loop: an ABORT or a fatal following error disables it). Each tick `ServoLoop.cycle`
+runs, on the servo thread, `read(now)` (the backend brings the state up to date), the loop's tick,
+and `write(now)` (the backend sends the commands). A backend whose samples arrive on their own
+(a subscription, a fieldbus thread) may put them into the AxisIO as they come (`AxisIO.sample`).
 
-1. `read(now, sink)`: per axis, the newest encoder sample (motor counts, load counts, the
-   sample's stamp [s]) goes to `sink.feedback(axis, motor, load, stamp)`; a fault of the axis's
-   drive or of the link to it goes to `sink.fault(axis, kind, reason)` on every read while it
-   lasts;
-2. the loop's tick (`ServoLoop.tick`);
-3. `enable(axis, on)` for every axis whose loop opened or closed (the amplifier-enable output of
-   a PMAC follows the motor's loop state: an ABORT or a fatal following error disables it);
-4. `write(now, names, outputs)`: the output [V] of each axis the tick closed a loop for.
-
-Fault kinds, and the status the loop gives them (the bits it has):
+Fault kinds, set on the AxisIO by the backend while the fault lasts, and the status the loop
+gives them (the bits it has):
 
 * `LINK`: the drive cannot be reached (a lost heartbeat, a dead link): FEEDBACK_FAULT at once,
   as stale encoder data would after feedback_timeout;
@@ -34,7 +34,9 @@ stepped inside the loop).
 """
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Final
+
+import math
 
 try:
     from mypy_extensions import mypyc_attr
@@ -42,35 +44,64 @@ except ImportError:      # built without mypy (plain Python): the mark only matt
     def mypyc_attr(*attrs: str, **kwattrs: object):  # type: ignore[misc]
         return lambda cls: cls
 
-LINK = 'link'
-DRIVE = 'drive'
-FAULT_KINDS = (LINK, DRIVE)
+LINK: Final = 'link'
+DRIVE: Final = 'drive'
+FAULT_KINDS: Final = (LINK, DRIVE)
 
 UNCONFIGURED, INACTIVE, ACTIVE = 'unconfigured', 'inactive', 'active'
+
+# s: an encoder stamp this much older than the sample in hand is a new clock, not a late copy
+# (a copy through a bridge lags by milliseconds, at most its second of history).
+CLOCK_RESTART: Final = 1.0
 
 
 class HardwareError(Exception):
     """What a backend cannot do, in one line naming the device and the object."""
 
 
-class FeedbackSink(Protocol):
-    """What `read` hands its samples and faults to (ServoLoop)."""
+class AxisIO:
+    """One axis's I/O, shared by the backend and the loop."""
 
-    def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None: ...
+    def __init__(self, name: str) -> None:
+        self.name = name
+        # State (the backend): the newest encoder sample (stamp nan: none yet), and the fault
+        # of the drive or of the link while it lasts ('' : none).
+        self.motor: int = 0
+        self.load: int = 0
+        self.stamp: float = math.nan
+        self.fault_kind: str = ''
+        self.fault_reason: str = ''
+        # Command (the loop's tick): the output [V], whether this tick commanded the axis (it
+        # has feedback and its loop ran), and whether its loop is closed.
+        self.output: float = 0.0
+        self.commanded: bool = False
+        self.enabled: bool = False
 
-    def fault(self, axis: str, kind: str, reason: str) -> None: ...
+    def sample(self, motor: int, load: int, stamp: float) -> None:
+        """An encoder sample stamped `stamp` [s]. One not newer than the sample in hand is
+        dropped: two paths to the loop (a plant's stream and a bridge's copy of it, a hop later)
+        deliver a sample twice and out of order. A stamp more than CLOCK_RESTART older is a new
+        clock (a restarted lockstep plant), taken."""
+        held = self.stamp
+        if held - CLOCK_RESTART < stamp <= held:          # (never with nothing held: nan)
+            return
+        self.motor = motor
+        self.load = load
+        self.stamp = stamp
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)     # (backends with ROS are not compiled)
 class HardwareInterface:
-    """One backend's I/O for the axes of a servo loop. Subclasses override the `on_*` steps of
-    the lifecycle and `read` / `write`; the lifecycle's order is kept here."""
+    """One backend's I/O for the axes of a servo loop (`io`, one AxisIO per axis). Subclasses
+    override the `on_*` steps of the lifecycle and `read` / `write`; the lifecycle's order is
+    kept here."""
 
     #: the `hardware` parameter's value that selects the backend
     kind = ''
 
     def __init__(self, axes) -> None:
         self.axes: list[str] = list(axes)
+        self.io: dict[str, AxisIO] = {a: AxisIO(a) for a in self.axes}
         self.state = UNCONFIGURED
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -105,30 +136,27 @@ class HardwareInterface:
         pass
 
     # -- the cycle ----------------------------------------------------------------------------
-    def read(self, now: float, sink: FeedbackSink) -> None:
-        """The newest samples and the faults of the axes, handed to `sink`."""
+    def read(self, now: float) -> None:
+        """Bring each AxisIO's state up to date: the newest sample, the faults."""
         raise NotImplementedError
 
-    def write(self, now: float, names: list[str], outputs: list[float]) -> None:
-        """The tick's outputs [V], one per name (the axes whose loops the tick ran)."""
+    def write(self, now: float) -> None:
+        """Send each commanded AxisIO's output; an amplifier follows `enabled` (a drive with
+        an enable sequence runs it on a change; a torque-mode amplifier on 0 V needs none)."""
         raise NotImplementedError
-
-    def enable(self, axis: str, on: bool) -> None:
-        """The axis's loop closed (on) or opened: the amplifier follows (a drive that has an
-        enable sequence runs it here; a torque-mode amplifier on a 0 V command needs none)."""
 
     def reset(self, axis: str) -> None:
         """`<axis>/reset`: clear what faulted the drive (a drive with a fault state resets it)."""
 
 
 class NoHardware(HardwareInterface):
-    """Nothing behind the loop: samples come to it by `ServoLoop.feedback` from outside and the
+    """Nothing behind the loop: samples come by `ServoLoop.feedback` from outside and the
     outputs go nowhere (a loop driven by hand, in tests)."""
 
     kind = 'none'
 
-    def read(self, now: float, sink: FeedbackSink) -> None:
+    def read(self, now: float) -> None:
         pass
 
-    def write(self, now: float, names: list[str], outputs: list[float]) -> None:
+    def write(self, now: float) -> None:
         pass

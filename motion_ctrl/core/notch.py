@@ -60,6 +60,7 @@ No rclpy here: plain, deterministic Python.
 
 import cmath
 import math
+from typing import Final
 
 __all__ = [
     'REGISTER_LIMIT', 'design', 'lowpass', 'prewarp_inputs', 'angle_matched_frequency', 'dc_gain',
@@ -67,7 +68,7 @@ __all__ = [
 ]
 
 #: Ixx36..Ixx39 are 24-bit registers, 1 sign bit + 1 integer bit + 22 fractional bits.
-REGISTER_LIMIT = 2.0
+REGISTER_LIMIT: Final = 2.0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -222,6 +223,16 @@ class Biquad:
     """
 
     __slots__ = ('_g', '_b1', '_b2', '_a1', '_a2', '_x1', '_x2', '_y1', '_y2', '_coeffs', 'passes')
+    # (typed here: configure takes any input and refuses it with a reason)
+    _g: float
+    _b1: float
+    _b2: float
+    _a1: float
+    _a2: float
+    _x1: float
+    _x2: float
+    _y1: float
+    _y2: float
 
     def __init__(self, n1=0.0, n2=0.0, d1=0.0, d2=0.0):
         self._x1 = self._x2 = self._y1 = self._y2 = 0.0
@@ -283,7 +294,7 @@ class Biquad:
         v = float(value)
         self._x1 = self._x2 = self._y1 = self._y2 = v
 
-    def peek(self, x):
+    def peek(self, x: float) -> float:
         """What `step(x)` would return, without advancing the filter (the servo law tests this
         tick's output for saturation before it commits the integration)."""
         if self.passes:
@@ -291,7 +302,7 @@ class Biquad:
         return self._g * x + self._b1 * self._x1 + self._b2 * self._x2 \
             - self._a1 * self._y1 - self._a2 * self._y2
 
-    def step(self, x):
+    def step(self, x: float) -> float:
         """Filter one sample; returns the output."""
         y = self._g * x + self._b1 * self._x1 + self._b2 * self._x2 \
             - self._a1 * self._y1 - self._a2 * self._y2

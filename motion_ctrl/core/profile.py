@@ -28,7 +28,7 @@ Plain Python, no rclpy, deterministic: the only clock is the dt passed in.
 """
 
 import math
-from typing import Protocol
+from typing import Final, Protocol
 
 from ruckig import (ControlInterface, InputParameter, Result, Ruckig,
                     RuckigError, Trajectory)
@@ -48,16 +48,16 @@ class Path(Protocol):
         """(position, velocity, acceleration) at t seconds from the start."""
         ...
 
-_INF = math.inf
+_INF: Final = math.inf
 
 # Residual tolerances for declaring the smoothed state equal to the raw one.
 # The exponential tail never reaches the raw value by itself; snapping only
 # below these keeps the final step invisible (far below any encoder count).
-_SNAP_POSITION = 1e-12   # m
-_SNAP_VELOCITY = 1e-9    # m/s
-_SNAP_ACCELERATION = 1e-6  # m/s^2
+_SNAP_POSITION: Final = 1e-12   # m
+_SNAP_VELOCITY: Final = 1e-9    # m/s
+_SNAP_ACCELERATION: Final = 1e-6  # m/s^2
 
-_OK_RESULTS = (Result.Working, Result.Finished)
+_OK_RESULTS: Final = (Result.Working, Result.Finished)
 
 
 def _finite(x):

@@ -26,37 +26,58 @@ node's log.
 """
 from __future__ import annotations
 
+from typing import Final
+
+import math
 from dataclasses import dataclass, field
 
 from motion_ctrl.core import excitation
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import LoopStats
 from motion_ctrl.core.coordination import CoordinateSystem
-from motion_ctrl.core.hardware import LINK, HardwareInterface, NoHardware
+from motion_ctrl.core.hardware import LINK, AxisIO, HardwareInterface, NoHardware
 from msg_defs.status import Status
 
 # s of encoder samples before the loop closes at start-up (real time): while DDS discovery
 # settles, a stream can pause for longer than feedback_timeout right after its first sample.
-STREAM_SETTLE = 0.5
-# s: an encoder stamp this much older than the sample in hand is a new clock, not a late copy
-# (a copy through a bridge lags by milliseconds, at most its second of history).
-CLOCK_RESTART = 1.0
-_FEEDBACK_FAULT = int(Status.FEEDBACK_FAULT)
-_FE_FATAL = int(Status.FOLLOWING_ERROR_FATAL)
+STREAM_SETTLE: Final = 0.5
+_FEEDBACK_FAULT: Final = int(Status.FEEDBACK_FAULT)
+_FE_FATAL: Final = int(Status.FOLLOWING_ERROR_FATAL)
+# 1.5 * 2**52: adding and taking it away rounds a double of magnitude below 2**51 to the nearest
+# whole number (half to even), in floats (round() would make a Python int).
+_ROUND: Final = 6755399441055744.0
 
 
 def _ns(seconds: float) -> float:
     """A difference of two stamps [s], back on the nanosecond grid ROS stamps live on: k·T − (k−1)·T
     in floats is T only to ~1e-18, and the profile must step by exactly the period."""
-    return round(seconds * 1e9) / 1e9
+    return ((seconds * 1e9 + _ROUND) - _ROUND) / 1e9
+
+
+class _Channel:
+    """The loop's bookkeeping of one axis: its I/O, the stamps of the first sample and of the
+    last one used, the servo time waited for a new one, and what was last logged."""
+
+    def __init__(self, name: str, axis: Axis, io: AxisIO) -> None:
+        self.name = name
+        self.axis = axis
+        self.io = io
+        self.first: float = math.nan
+        self.used: float = math.nan
+        self.waited: float = 0.0
+        self.faults: int = 0
+        self.diverged: tuple | None = None
+        self.word: int = -1              # the status word last reported in Tick.changed
 
 
 @dataclass
 class Tick:
-    """What one tick produced: the axes that have feedback, their outputs [V], and log lines
-    as (level, text), level 'error' or 'warning'."""
+    """What one tick produced: the axes that have feedback, their outputs [V], the axes whose
+    status word changed since the last tick, and log lines as (level, text), level 'error' or
+    'warning'."""
     names: list[str] = field(default_factory=list)
     outputs: list[float] = field(default_factory=list)
+    changed: list[str] = field(default_factory=list)
     log: list[tuple[str, str]] = field(default_factory=list)
 
 
@@ -66,7 +87,7 @@ class ServoLoop:
                  hardware: HardwareInterface | None = None):
         self.axes = axes
         self.hardware: HardwareInterface = NoHardware(axes) if hardware is None else hardware
-        self._amplifier_on = {a: False for a in axes}     # what the hardware was last told
+        self.channels = [_Channel(a, axis, self.hardware.io[a]) for a, axis in axes.items()]
         self.values = values                  # registers applied, per axis
         self.staged: dict[str, dict] = {}     # accepted, applied at the next tick
         self.period = period
@@ -74,45 +95,20 @@ class ServoLoop:
         self.sim_time = sim_time
         self.stats = LoopStats(period)
         self.last_tick: float | None = None
-        # Per axis: the latest sample (motor, load, stamp [s]), the stamp of the last one used,
-        # the stamp of the first, and the servo time waited for a new one.
-        self.enc: dict[str, tuple[int, int, float] | None] = {a: None for a in axes}
-        self.enc_used: dict[str, float | None] = {a: None for a in axes}
-        self.first_sample: dict[str, float] = {}
-        self.waited = {a: 0.0 for a in axes}
         self.scheduled: list[tuple[float, str, float, int]] = []   # (stamp, axis, target, epoch)
         self.coords = CoordinateSystem(axes)
-        self._faults = {a: 0 for a in axes}
-        self._diverged: dict[str, tuple | None] = {}      # the last logged, per axis
         self._age_recorded = False   # the sample age of this tick is in the statistics
-        self._log: list[tuple[str, str]] = []   # said between ticks, for the next tick's lines
 
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
-        """An encoder sample of `axis`, stamped by the plant [s]. One not newer than the sample
-        in hand is dropped: two paths to the loop (the plant's stream and a bridge's copy of it,
-        a hop later) deliver a sample twice and out of order. A stamp more than CLOCK_RESTART
-        older is a new clock (a restarted lockstep plant), taken."""
-        held = self.enc[axis]
-        if held is not None and held[2] - CLOCK_RESTART < stamp <= held[2]:
-            return
-        self.enc[axis] = (motor, load, stamp)
+        """An encoder sample of `axis` stamped `stamp` [s], from outside the hardware's `read`
+        (AxisIO.sample: an older or repeated one is dropped)."""
+        self.hardware.io[axis].sample(motor, load, stamp)
 
-    def fault(self, axis: str, kind: str, reason: str) -> None:
-        """The hardware reports a fault of `axis` (core.hardware): LINK opens the loop as
-        FEEDBACK_FAULT, DRIVE as an ABORT that holds until reset; logged when it latches."""
-        ax = self.axes[axis]
-        if kind == LINK:
-            if not ax.fault_bits & _FEEDBACK_FAULT:
-                opened = 'loop opened' if ax.enabled else 'the loop was open'
-                self._log.append(('error', f'{axis}: FEEDBACK_FAULT: {reason}; {opened}, call '
-                                           f'{axis}/reset'))
-            ax.feedback_fault(reason)
-        elif not ax.drive_fault_reason:
-            opened = 'loop opened (ABORTED)' if ax.enabled else 'the loop was open'
-            self._log.append(('error', f'{axis}: amplifier fault: {reason}; {opened}, call '
-                                       f'{axis}/reset'))
-            ax.drive_fault(reason)
+    @property
+    def waited(self) -> dict[str, float]:
+        """Per axis, the servo time waited for a new encoder sample [s]."""
+        return {c.name: c.waited for c in self.channels}
 
     def reset(self, axis: str):
         """`<axis>/reset`: the drive's fault reset, then the axis's (Axis.reset)."""
@@ -198,25 +194,14 @@ class ServoLoop:
 
     # -- the cycle ------------------------------------------------------------------------------
     def cycle(self, now: float) -> Tick | None:
-        """One servo cycle at time `now` [s]: read the hardware, tick, let the amplifiers follow
-        the loops, write the outputs. None when time did not advance (nothing written)."""
+        """One servo cycle at time `now` [s]: the hardware reads, the loop ticks, the hardware
+        writes. None when time did not advance (nothing written)."""
         hardware = self.hardware
-        hardware.read(now, self)
+        hardware.read(now)
         tick = self.tick(now)
         if tick is not None:
-            self._amplifiers()
-            hardware.write(now, tick.names, tick.outputs)
+            hardware.write(now)
         return tick
-
-    def _amplifiers(self) -> None:
-        """Each amplifier enabled while its axis's loop is closed (PMAC's amplifier-enable
-        output): told on a change only."""
-        told = self._amplifier_on
-        for a, axis in self.axes.items():
-            on = axis.enabled
-            if on != told[a]:
-                told[a] = on
-                self.hardware.enable(a, on)
 
     # -- the tick -------------------------------------------------------------------------------
     def tick(self, now: float) -> Tick | None:
@@ -226,8 +211,6 @@ class ServoLoop:
         if dt <= 0.0:
             return None
         out = Tick()
-        if self._log:
-            out.log, self._log = self._log, []
         self.stats.period(dt)
         if self.staged:
             out.log += self.apply_staged()
@@ -236,76 +219,109 @@ class ServoLoop:
         if self.coords.busy:
             out.log += self.coords.tick(now, self.values)
         self._age_recorded = False   # (one encoder message carries every axis)
-        for a, axis in self.axes.items():
-            enc = self.enc[a]
-            if enc is None:
-                continue                 # no feedback yet: the loop stays open, nothing sent
-            stale = self._watch_feedback(a, enc[2], dt)
-            if not axis.homed and not self._stream_established(a, enc[2], stale):
-                continue                 # the encoder stream is not established yet: wait
+        for ch in self.channels:
+            io = ch.io
+            stamp = io.stamp
+            if stamp != stamp:           # (nan) no feedback yet: the loop stays open, nothing sent
+                io.commanded = False
+                continue
+            axis = ch.axis
+            if io.fault_kind:
+                self._hardware_fault(ch, out)
+            stale = self._watch_feedback(ch, stamp, dt)
+            if not axis.homed and not self._stream_established(ch, stamp, stale):
+                io.commanded = False     # the encoder stream is not established yet: wait
+                continue
             if stale:
-                volts = self._feedback_lost(a, axis, enc, now, dt, out)
+                volts = self._feedback_lost(ch, now, dt, out)
             else:
-                volts = self._servo(a, axis, enc, now, dt)
-            self._report(a, axis, out)
-            out.names.append(a)
+                volts = self._servo(ch, now, dt)
+            self._report(ch, out)
+            word = axis.word
+            if word != ch.word:
+                ch.word = word
+                out.changed.append(ch.name)
+            io.output = volts
+            io.commanded = True
+            io.enabled = axis.enabled
+            out.names.append(ch.name)
             out.outputs.append(volts)
         return out
 
     # The stages of one axis's tick.
-    def _watch_feedback(self, a: str, stamp: float, dt: float) -> bool:
-        """The feedback watchdog: servo time waited for a new sample of axis `a` (a late tick
-        counts at most two periods); True once it exceeds feedback_timeout."""
-        if stamp != self.enc_used[a]:
-            self.waited[a] = 0.0
-        else:
-            self.waited[a] = _ns(self.waited[a] + min(dt, 2 * self.period))
-            if self.waited[a] > self.stats.feedback_wait_max:
-                self.stats.feedback_wait_max = self.waited[a]
-        return self.waited[a] > self.feedback_timeout
+    def _hardware_fault(self, ch: _Channel, out: Tick) -> None:
+        """A fault the hardware reports (core.hardware): LINK opens the loop as FEEDBACK_FAULT,
+        DRIVE as an ABORT that holds until reset; logged when it latches."""
+        axis, io, a = ch.axis, ch.io, ch.name
+        if io.fault_kind == LINK:
+            if not axis.fault_bits & _FEEDBACK_FAULT:
+                opened = 'loop opened' if axis.enabled else 'the loop was open'
+                out.log.append(('error', f'{a}: FEEDBACK_FAULT: {io.fault_reason}; {opened}, '
+                                         f'call {a}/reset'))
+            axis.feedback_fault(io.fault_reason)
+        elif not axis.drive_fault_reason:
+            opened = 'loop opened (ABORTED)' if axis.enabled else 'the loop was open'
+            out.log.append(('error', f'{a}: amplifier fault: {io.fault_reason}; {opened}, call '
+                                     f'{a}/reset'))
+            axis.drive_fault(io.fault_reason)
 
-    def _stream_established(self, a: str, stamp: float, stale: bool) -> bool:
+    def _watch_feedback(self, ch: _Channel, stamp: float, dt: float) -> bool:
+        """The feedback watchdog: servo time waited for a new sample (a late tick counts at
+        most two periods); True once it exceeds feedback_timeout."""
+        if stamp != ch.used:
+            ch.waited = 0.0
+        else:
+            ch.waited = _ns(ch.waited + min(dt, 2 * self.period))
+            if ch.waited > self.stats.feedback_wait_max:
+                self.stats.feedback_wait_max = ch.waited
+        return ch.waited > self.feedback_timeout
+
+    def _stream_established(self, ch: _Channel, stamp: float, stale: bool) -> bool:
         """The loop-closing gate: an axis closes its loop once its encoder stream has run for
         STREAM_SETTLE (real time), not on the first sample of a stream that may still stall."""
-        first = self.first_sample.setdefault(a, stamp)
-        return not stale and (self.sim_time or stamp - first >= STREAM_SETTLE)
+        if ch.first != ch.first:
+            ch.first = stamp
+        return not stale and (self.sim_time or stamp - ch.first >= STREAM_SETTLE)
 
-    def _feedback_lost(self, a: str, axis: Axis, enc, now: float, dt: float, out: Tick) -> float:
+    def _feedback_lost(self, ch: _Channel, now: float, dt: float, out: Tick) -> float:
         """FEEDBACK_FAULT: the loop opens (logged once, when it latches)."""
-        motor, load, stamp = enc
+        axis, io, a = ch.axis, ch.io, ch.name
         if not axis.fault_bits & _FEEDBACK_FAULT:
             opened = 'loop opened' if axis.enabled else 'the loop was open'
             out.log.append(('error', (
-                f'{a}: FEEDBACK_FAULT: no new encoder sample for {self.waited[a] * 1e3:.0f} ms '
-                f'of servo time (the last is stamped {(now - stamp) * 1e3:.0f} ms ago); '
+                f'{a}: FEEDBACK_FAULT: no new encoder sample for {ch.waited * 1e3:.0f} ms '
+                f'of servo time (the last is stamped {(now - io.stamp) * 1e3:.0f} ms ago); '
                 f'{opened}, call {a}/reset')))
         axis.feedback_fault()
-        return axis.update(dt, motor, load, sample_dt=0.0)
+        return axis.update(dt, io.motor, io.load, sample_dt=0.0)
 
-    def _servo(self, a: str, axis: Axis, enc, now: float, dt: float) -> float:
+    def _servo(self, ch: _Channel, now: float, dt: float) -> float:
         """The axis's tick on its latest sample: the time since the previous sample, and the
         sample's age at this tick (the axis takes the error against the command of then)."""
-        motor, load, stamp = enc
-        prev = self.enc_used[a]
-        sample_dt = None if prev is None else _ns(stamp - prev)
-        self.enc_used[a] = stamp
+        io = ch.io
+        stamp = io.stamp
+        prev = ch.used
+        sample_dt = None if prev != prev else _ns(stamp - prev)
+        ch.used = stamp
         age = min(max(now - stamp, 0.0), 3 * self.period)
         if not self._age_recorded:
             self._age_recorded = True
             self.stats.feedback_age(age)
-        return axis.update(dt, motor, load, sample_dt=sample_dt, age=age)
+        return ch.axis.update(dt, io.motor, io.load, sample_dt=sample_dt, age=age)
 
-    def _report(self, a: str, axis: Axis, out: Tick) -> None:
+    def _report(self, ch: _Channel, out: Tick) -> None:
         """Log what latched this tick: a fatal following error, a correction loop stopped."""
+        axis = ch.axis
         faults = axis.fault_bits
-        if faults & _FE_FATAL and not self._faults[a] & _FE_FATAL:
-            out.log.append(('error', f'{a}: {axis.fault_reason}; loop opened, call {a}/reset'))
-        self._faults[a] = faults
+        if faults & _FE_FATAL and not ch.faults & _FE_FATAL:
+            out.log.append(('error', f'{ch.name}: {axis.fault_reason}; loop opened, call '
+                                     f'{ch.name}/reset'))
+        ch.faults = faults
         diverged = axis.sampled.diverged
-        if diverged is not None and self._diverged.get(a) != diverged:
-            out.log.append(('warning', f'{a}: correction moves stopped: the load error grew '
-                                       f'from {diverged[0]} to {diverged[1]} counts'))
-        self._diverged[a] = diverged
+        if diverged is not None and ch.diverged != diverged:
+            out.log.append(('warning', f'{ch.name}: correction moves stopped: the load error '
+                                       f'grew from {diverged[0]} to {diverged[1]} counts'))
+        ch.diverged = diverged
 
     def _scheduled(self, now: float, out: Tick) -> None:
         void = {a for _, a, _, epoch in self.scheduled if epoch != self.axes[a].command_epoch}

@@ -54,6 +54,7 @@ Timing rule ("held for the settling time"), exactly:
 
 import math
 import numbers
+from typing import Final
 
 from msg_defs.status import Status
 
@@ -62,28 +63,28 @@ from motion_ctrl.core.config import SettlingConfig, defaults
 __all__ = ['Settling', 'TIME_EPSILON', 'MOTION_BITS', 'STOP_KINDS', 'status_word']
 
 #: Tolerance [s] for "held for settling_time" comparisons of accumulated dt.
-TIME_EPSILON = 1e-9
+TIME_EPSILON: Final = 1e-9
 
 #: The bits this module owns; the caller ORs in the others.
-MOTION_BITS = (Status.MOVING | Status.AT_TARGET | Status.IN_COARSE_POSITION
+MOTION_BITS: Final = (Status.MOVING | Status.AT_TARGET | Status.IN_COARSE_POSITION
                | Status.IN_FINE_POSITION | Status.MOTION_DONE | Status.MOTION_AT_VELOCITY
                | Status.STOPPED | Status.ESTOPPED | Status.ABORTED)
 
 #: start_stop() kinds and the status bit each one reports when finished.
-STOP_KINDS = {'stop': Status.STOPPED, 'estop': Status.ESTOPPED}
+STOP_KINDS: Final = {'stop': Status.STOPPED, 'estop': Status.ESTOPPED}
 
 # The same bits as plain ints for the per-tick path: IntFlag arithmetic costs ~1 us an
 # operation (enum machinery), int arithmetic ~30 ns. A Status is built once per distinct word.
-_MOVING = int(Status.MOVING)
-_AT_TARGET = int(Status.AT_TARGET)
-_IN_COARSE = int(Status.IN_COARSE_POSITION)
-_IN_FINE = int(Status.IN_FINE_POSITION)
-_DONE = int(Status.MOTION_DONE)
-_AT_VELOCITY = int(Status.MOTION_AT_VELOCITY)
-_STOPPED = int(Status.STOPPED)
-_ESTOPPED = int(Status.ESTOPPED)
-_ABORTED = int(Status.ABORTED)
-_LATCHED = _STOPPED | _ESTOPPED | _ABORTED   # events that outlive their move
+_MOVING: Final = int(Status.MOVING)
+_AT_TARGET: Final = int(Status.AT_TARGET)
+_IN_COARSE: Final = int(Status.IN_COARSE_POSITION)
+_IN_FINE: Final = int(Status.IN_FINE_POSITION)
+_DONE: Final = int(Status.MOTION_DONE)
+_AT_VELOCITY: Final = int(Status.MOTION_AT_VELOCITY)
+_STOPPED: Final = int(Status.STOPPED)
+_ESTOPPED: Final = int(Status.ESTOPPED)
+_ABORTED: Final = int(Status.ABORTED)
+_LATCHED: Final = _STOPPED | _ESTOPPED | _ABORTED   # events that outlive their move
 
 _STATUS_MEMO: dict[int, Status] = {}
 
@@ -98,12 +99,12 @@ def status_word(value: int) -> Status:
 
 
 # Modes (what is pending).
-IDLE = 'idle'
-POSITION = 'position'
-VELOCITY = 'velocity'
-STOP = 'stop'
-ESTOP = 'estop'
-ABORT = 'abort'
+IDLE: Final = 'idle'
+POSITION: Final = 'position'
+VELOCITY: Final = 'velocity'
+STOP: Final = 'stop'
+ESTOP: Final = 'estop'
+ABORT: Final = 'abort'
 
 
 def _finite(name, value):

@@ -18,12 +18,14 @@ frame. Plain Python, no ROS.
 """
 from __future__ import annotations
 
+from typing import Final
+
 import math
 
 from motion_ctrl.core.profile import Profile
 
 # ruckig's extrema carry float residue; a limit is "passed" only by more than this [m].
-EPS = 1e-9
+EPS: Final = 1e-9
 
 
 def stopping_distance(speed: float, acceleration: float, max_acceleration: float,

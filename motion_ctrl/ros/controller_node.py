@@ -23,9 +23,11 @@ sim time, is one tick, and the command carries the sample's stamp. With the plan
 this makes a scenario deterministic. With `use_sim_time` and `hardware: sim` this node is the
 clock: it ticks back to back, as fast as the machine allows, publishes `/clock` and runs the
 callbacks that came (targets, services, parameters) between batches of ticks (SIM_BATCH s of
-wall time): deterministic for targets stamped ahead. Its /clock is published once a batch. A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's
-clock is applied at the first tick at or after that stamp (a coordinated start of several axes,
-or a move at an exact sim time); other targets apply at once. A `joint_trajectory`
+wall time): deterministic for targets stamped ahead. Its /clock is published once a batch.
+
+A target whose header stamp lies up to MAX_SCHEDULE seconds ahead of the node's clock is applied
+at the first tick at or after that stamp (a coordinated start of several axes, or a move at an
+exact sim time); other targets apply at once. A `joint_trajectory`
 (trajectory_msgs/JointTrajectory) is checked as a whole and run on all its axes on one time base
 (`ServoLoop.trajectory`, PMAC PVT); its header stamp schedules it the same way.
 
@@ -170,8 +172,10 @@ class ControllerNode(ros_params.RegisterNode):
         for a in self.axis_names:
             self._make_services(a)
 
-        self.last_status: dict[str, int | None] = {a: None for a in self.axis_names}
-        self.last_status_time = {a: -math.inf for a in self.axis_names}
+        # The status words: each on a change, and each again at least every STATUS_PERIOD,
+        # a few axes a tick in turn (`_refresh_status`).
+        self.status_turn = 0
+        self.status_due = 0.0
         self.stats = self.loop.stats
         self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
         # What drives the tick: a timer in real time; in sim time the plant's samples
@@ -499,13 +503,16 @@ class ControllerNode(ros_params.RegisterNode):
             now = self.bus_ns * 1e-9
         while not self.prepared.empty():
             self._start_trajectory(*self.prepared.get_nowait())
+        if self.hardware_kind == 'topics':
+            self.hardware.stamp_tick(stamp, now)
         tick = self.loop.cycle(now)
         if tick is None:
             return                       # sim time paused or stepped back
         if tick.log:
             self._log(tick.log)
         names, outputs = tick.names, tick.outputs
-        if names:
+        if names and (self.pub_joint.wanted() or self.pub_reference.wanted()
+                      or self.pub_motor.wanted()):
             ax = [self.axes[a] for a in names]
             if self.pub_joint.wanted():
                 self.pub_joint.publish(stamp, names, [x.load_pos for x in ax],
@@ -518,16 +525,25 @@ class ControllerNode(ros_params.RegisterNode):
                                        [x.motor_vel for x in ax])
         if self.hardware_kind == 'sim':
             self.plant_states.publish(stamp_of(self.hardware.time), self.hardware)
-        for a, axis in self.axes.items():
-            g = axis.gather
-            if g is not None and g.ended is not None and a in self.run_meta:
+        for a in list(self.run_meta):
+            g = self.axes[a].gather
+            if g is not None and g.ended is not None:
                 self.gathers.put((a, g, self.run_meta.pop(a)))    # published off the tick
-            s = axis.word
-            if s != self.last_status[a] or now - self.last_status_time[a] >= STATUS_PERIOD:
-                self.pub_status[a].send(UInt32(data=s))
-                self.last_status[a] = s
-                self.last_status_time[a] = now
+        for a in tick.changed:
+            self.pub_status[a].send(UInt32(data=self.axes[a].word))
+        self._refresh_status()
         self.stats.work(time.perf_counter() - t_start)
+
+    def _refresh_status(self) -> None:
+        """Every axis's status word again every STATUS_PERIOD (of servo time), spread over the
+        ticks: a few axes a tick, in turn, instead of all of them in one."""
+        names = self.axis_names
+        self.status_due += len(names) * self.period / STATUS_PERIOD
+        while self.status_due >= 1.0:
+            self.status_due -= 1.0
+            a = names[self.status_turn]
+            self.status_turn = (self.status_turn + 1) % len(names)
+            self.pub_status[a].send(UInt32(data=self.axes[a].word))
 
     # -- the sim clock (hardware sim, use_sim_time) ---------------------------------------------
     def _start_sim_clock(self) -> None:

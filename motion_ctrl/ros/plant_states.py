@@ -3,7 +3,7 @@ with `hardware: sim`: `plant_states` (ground truth: `<axis>_motor`, `<axis>_load
 and velocities), `amplifier_states` (effort = the output each amplifier applied [V]) and
 `<axis>/amplifier_fault` (std_msgs/Bool, latched: true while the command watchdog holds the
 output at 0 V), the last on every change and at least every FAULT_PERIOD, with a log line on a
-trip and on the recovery (not at start-up, before the first command)."""
+trip and on the recovery (not at start-up: the first sample says how the amplifiers start)."""
 from __future__ import annotations
 
 from sensor_msgs.msg import JointState
@@ -27,33 +27,45 @@ class PlantStates:
         self.pub_amp = node.stream(JointState, md.AMPLIFIER_STATES, refresh=refresh)
         self.pub_fault = {a: node.stream(Bool, md.amplifier_fault_topic(a), md.STATUS_QOS)
                           for a in self.axes}
-        self.fault: dict[str, bool | None] = {a: None for a in self.axes}   # last published
-        self.fault_time = {a: -1.0 for a in self.axes}
-        self.next_fault_check = -1.0
+        self.fault: list[bool] | None = None      # per axis, as last published
+        self.fault_turn = 0                       # the next to publish again (in turn)
+        self.fault_due = 0.0
+        self.last_time: float | None = None
 
     def publish(self, stamp, slides) -> None:
         """One sample of every slide at `stamp` (a ROS time message). `slides` has `truth()`
         (positions and velocities, motor then load per axis), `applied()` (volts per axis) and
-        `tripped()` (per axis), asked for only what somebody reads."""
+        `tripped()` (per axis), asked for only what somebody reads. The faults: each on a
+        change, and each again every FAULT_PERIOD, a few axes a sample in turn."""
         if self.pub_truth.wanted():
             self.pub_truth.publish(stamp, self.names, *slides.truth())
         if self.pub_amp.wanted():
             self.pub_amp.publish(stamp, self.axes, effort=slides.applied())
         now = stamp.sec + stamp.nanosec * 1e-9
-        if now < self.next_fault_check and self.next_fault_check - now < 1.0:
-            return               # (a changed fault waits at most FAULT_PERIOD / 10)
-        self.next_fault_check = now + FAULT_PERIOD / 10
-        for a, trip in zip(self.axes, slides.tripped()):
-            last = self.fault[a]
-            if trip == last and now - self.fault_time[a] < FAULT_PERIOD:
-                continue
-            if last is not None and trip != last:
-                if trip:
-                    self.node.get_logger().warning(
-                        f'{a}: amplifier fault: no command for '
-                        f'{self.command_timeout[a] * 1e3:g} ms (command_timeout): output 0 V, '
-                        f'dynamic brake on')
-                else:
-                    self.node.get_logger().info(f'{a}: amplifier: commands arriving, output on')
-            self.pub_fault[a].send(Bool(data=bool(trip)))
-            self.fault[a], self.fault_time[a] = trip, now
+        tripped = slides.tripped()
+        last = self.fault
+        if last is None:
+            for a, trip in zip(self.axes, tripped):
+                self.pub_fault[a].send(Bool(data=bool(trip)))
+        elif tripped != last:
+            for a, trip, was in zip(self.axes, tripped, last):
+                if trip != was:
+                    self._changed(a, trip)
+        self.fault = tripped
+        dt = 0.0 if self.last_time is None else min(max(now - self.last_time, 0.0), FAULT_PERIOD)
+        self.last_time = now
+        self.fault_due += len(self.axes) * dt / FAULT_PERIOD
+        while self.fault_due >= 1.0:
+            self.fault_due -= 1.0
+            i = self.fault_turn
+            self.fault_turn = (i + 1) % len(self.axes)
+            self.pub_fault[self.axes[i]].send(Bool(data=bool(tripped[i])))
+
+    def _changed(self, a: str, trip: bool) -> None:
+        if trip:
+            self.node.get_logger().warning(
+                f'{a}: amplifier fault: no command for {self.command_timeout[a] * 1e3:g} ms '
+                f'(command_timeout): output 0 V, dynamic brake on')
+        else:
+            self.node.get_logger().info(f'{a}: amplifier: commands arriving, output on')
+        self.pub_fault[a].send(Bool(data=bool(trip)))

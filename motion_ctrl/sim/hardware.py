@@ -6,7 +6,8 @@ Each tick (`ServoLoop.cycle`):
 * `write` commands each slide's amplifier with the tick's output and integrates every slide one
   servo period on it (the DAC's zero-order hold over the coming period); an axis the tick did not
   command gets nothing, and its amplifier's command watchdog runs as the plant node's
-  (`SlidePlant.advance`: after `command_timeout` 0 V and the dynamic brake);
+  (`SlidePlant.advance`: after `command_timeout` 0 V and the dynamic brake). The amplifier does
+  not follow the loop's enable: an open loop commands 0 V, as it does to the plant node;
 * `read` takes the encoders of every slide, stamped with the simulation's time. In real time, a
   tick that comes more than a quarter period late first integrates the lateness on the held
   command (the machine does not stop while the loop is held up; counted by the watchdog as the
@@ -22,14 +23,16 @@ path over a network (the in-process harness uses it).
 """
 from __future__ import annotations
 
+from typing import Final
+
 import math
 from collections import deque
 
-from motion_ctrl.core.hardware import FeedbackSink, HardwareError, HardwareInterface
+from motion_ctrl.core.hardware import AxisIO, HardwareError, HardwareInterface
 from motion_ctrl.sim.plant import SlidePlant
 
 # A real-time tick later than this fraction of a period integrates its lateness first.
-LATE = 0.25
+LATE: Final = 0.25
 
 
 class SimHardware(HardwareInterface):
@@ -46,8 +49,8 @@ class SimHardware(HardwareInterface):
         self.substep_rate: float = substep_rate
         self.latency_ticks: int = latency_ticks
         self.plants: dict[str, SlidePlant] = {}
-        self._slides: list[tuple[str, SlidePlant]] = []
-        self._delay: dict[str, deque] = {}
+        self._slides: list[tuple[AxisIO, SlidePlant]] = []
+        self._delay: list[deque] = []
         self.time: float = math.nan        # the simulation's time: where the last step ended
 
     def on_configure(self) -> None:
@@ -58,8 +61,8 @@ class SimHardware(HardwareInterface):
             except ValueError as e:
                 raise HardwareError(f'sim: {a}.{e}') from None
         self.plants = plants
-        self._slides = list(plants.items())
-        self._delay = {a: deque([0.0] * self.latency_ticks) for a in self.axes}
+        self._slides = [(self.io[a], plants[a]) for a in self.axes]
+        self._delay = [deque([0.0] * self.latency_ticks) for _ in self.axes]
 
     def on_deactivate(self) -> None:
         for plant in self.plants.values():
@@ -73,7 +76,7 @@ class SimHardware(HardwareInterface):
         self.params[axis].update(changes)
 
     # -- the cycle ----------------------------------------------------------------------------
-    def read(self, now: float, sink: FeedbackSink) -> None:
+    def read(self, now: float) -> None:
         t = self.time
         if t != t or abs(now - t) < 1e-9:   # the first read; or on time (ROS stamps: whole ns)
             t = self.time = now
@@ -82,23 +85,25 @@ class SimHardware(HardwareInterface):
             for _, plant in self._slides:
                 plant.advance(late, self.period)
             t = self.time = now
-        for a, plant in self._slides:
-            motor, load = plant.encoder_counts()
-            sink.feedback(a, motor, load, t)
+        for io, plant in self._slides:
+            io.motor = plant.motor_count()
+            io.load = plant.load_count()
+            io.stamp = t
 
-    def write(self, now: float, names: list[str], outputs: list[float]) -> None:
-        plants = self.plants
-        if self.latency_ticks:
-            for a, volts in zip(names, outputs):
-                delay = self._delay[a]
-                delay.append(volts)
-                plants[a].command(delay.popleft())
-        else:
-            for a, volts in zip(names, outputs):
-                plants[a].command(volts)
+    def write(self, now: float) -> None:
         T = self.period
-        for _, plant in self._slides:
+        delayed = self.latency_ticks > 0
+        i = 0
+        for io, plant in self._slides:
+            if io.commanded:
+                volts = io.output
+                if delayed:
+                    line = self._delay[i]
+                    line.append(volts)
+                    volts = line.popleft()
+                plant.command(volts)
             plant.advance(T, T)
+            i += 1
         t = self.time
         self.time = (now if t != t else max(t, now)) + T
 

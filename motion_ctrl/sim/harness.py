@@ -11,6 +11,8 @@ clocks: a scenario is deterministic and runs many times faster than real time. S
 """
 from __future__ import annotations
 
+from typing import Final
+
 from dataclasses import dataclass, field
 
 from msg_defs.status import Status
@@ -19,7 +21,7 @@ from motion_ctrl.sim.hardware import SimHardware
 from motion_ctrl.core.registers import CONTROLLER_GLOBAL
 from motion_ctrl.core.servo_loop import ServoLoop
 
-_DONE = int(Status.MOTION_DONE)
+_DONE: Final = int(Status.MOTION_DONE)
 
 
 @dataclass
@@ -71,12 +73,8 @@ class Harness:
             tr.actual.append(a.actual_pos)
             tr.motor.append(self.plant.x_m)
             tr.load.append(self.plant.x_l)
-            out = 0.0
-            if tick is not None:
-                for name, volts in zip(tick.names, tick.outputs):
-                    if name == a.name:
-                        out = volts
-            tr.output.append(out)
+            io = self.hardware.io[a.name]
+            tr.output.append(io.output if tick is not None and io.commanded else 0.0)
             tr.status.append(a.word)
             tr.following_error.append(a.following_error)
 

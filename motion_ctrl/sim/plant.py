@@ -154,16 +154,18 @@ class SlidePlant:
             raise ValueError('; '.join(reasons))
         self.params = new
         p = new
-        self._rad_per_m = TWO_PI / p['lead']
-        self.motor_mass = p['motor_inertia'] * self._rad_per_m ** 2
-        self._force_per_volt = p['amplifier_gain'] * p['torque_constant'] * self._rad_per_m
+        self._rad_per_m: float = TWO_PI / p['lead']
+        self.motor_mass: float = p['motor_inertia'] * self._rad_per_m ** 2
+        self._force_per_volt: float = (p['amplifier_gain'] * p['torque_constant']
+                                       * self._rad_per_m)
         # Rotary friction reflected to the linear coordinate.
-        self._m_visc = p['motor_viscous'] * self._rad_per_m ** 2
-        self._m_visc_braked = self._m_visc + p['dynamic_brake'] * self._rad_per_m ** 2
-        self._m_coul = p['motor_coulomb'] * self._rad_per_m
-        self._m_stic = p['motor_stiction'] * self._rad_per_m
-        self.motor_counts_per_m = p['motor_counts_per_rev'] / p['lead']
-        self.load_counts_per_m = 1.0 / p['load_resolution']
+        self._m_visc: float = p['motor_viscous'] * self._rad_per_m ** 2
+        self._m_visc_braked: float = self._m_visc + p['dynamic_brake'] * self._rad_per_m ** 2
+        self._m_coul: float = p['motor_coulomb'] * self._rad_per_m
+        self._m_stic: float = p['motor_stiction'] * self._rad_per_m
+        self._command_timeout: float = p['command_timeout']
+        self.motor_counts_per_m: float = p['motor_counts_per_rev'] / p['lead']
+        self.load_counts_per_m: float = 1.0 / p['load_resolution']
         # What a step reads, looked up once here (params change only through configure), as
         # typed floats: compiled (setup.py), step passes them to _substeps as native doubles.
         self._pitch_slope: float = p['pitch_error_slope']
@@ -201,8 +203,13 @@ class SlidePlant:
 
     def encoder_counts(self):
         """(motor counts, load counts), floored as a quadrature counter reads them."""
-        return (math.floor(self.x_m * self.motor_counts_per_m + 1e-9),
-                math.floor(self.x_l * self.load_counts_per_m + 1e-9))
+        return self.motor_count(), self.load_count()
+
+    def motor_count(self) -> int:
+        return math.floor(self.x_m * self.motor_counts_per_m + 1e-9)
+
+    def load_count(self) -> int:
+        return math.floor(self.x_l * self.load_counts_per_m + 1e-9)
 
     # -- the amplifier's command watchdog ------------------------------------------------------
     def command(self, volts: float) -> None:
@@ -231,7 +238,7 @@ class SlidePlant:
         in plant time, so a lockstep run (a command every cycle) stays deterministic.
         """
         # (1 ns slack: five 1 ms cycles add up to 5 ms, not to a hair less)
-        self.tripped = self.command_age >= self.params['command_timeout'] - 1e-9
+        self.tripped = self.command_age >= self._command_timeout - 1e-9
         if self.tripped:
             self.step(0.0, dt, braking=True)
         else:

@@ -7,12 +7,15 @@ Sections (each prints a small table; paste the output into the README with the m
            (one axis + plant: a 1-inch move and back) in × real time, and the plant's step alone.
 * floor  — period jitter of a bare Python sleep loop and of a bare rclpy timer doing nothing
            (the machine's floor: the VM's scheduler sets it, not this code).
-* dds    — plant and controller as two processes over real DDS at 1 kHz and 2 kHz for 1, 6 and
-           64 axes: achieved servo rate, period jitter p50/p99/max and work per tick (from the
-           controller's /diagnostics), controller CPU per tick (/proc), feedback age at the tick
-           (encoder stamp -> use) and command transport (command stamp -> arrival at a
+* dds    — the controller in real time at 1 kHz and 2 kHz for 1, 6, 64 and 256 axes, for each
+           `hardware`: topics (plant and controller as two processes over DDS) and sim (the
+           controller alone, the slides in its loop): achieved servo rate, period jitter
+           p50/p99/max and work per tick (from the controller's /diagnostics), controller CPU
+           per tick (/proc: its loop process and its bridge), feedback age at the tick (encoder
+           stamp -> use) and, over topics, command transport (command stamp -> arrival at a
            reader in a third process, as the plant receives it).
-* lockstep — sim seconds per wall second of the deterministic lockstep simulation.
+* lockstep — sim seconds per wall second of the deterministic lockstep simulation, one axis:
+           plant and controller (topics) and the controller alone (sim).
 * canopen — `hardware: canopen` against `virtual_drive` in another process on udp_multicast (in
            a private network namespace: the benchmark runs itself again inside one), one axis
            and two on one bus, each at the highest rate 1 Mbit/s carries: the bus load, SYNC ->
@@ -193,28 +196,33 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
-    """Loop figures over DDS. The observer (this process) reads only /diagnostics while the
+def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 'topics') -> dict:
+    """Loop figures in real time. The observer (this process) reads only /diagnostics while the
     rate is measured: a third process taking 1 kHz streams would load the two cores it shares
-    with plant and controller. The command transport is measured after, in a window of its own.
-    """
+    with plant and controller. The command transport (topics) is measured after, in a window of
+    its own."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
     import msg_defs as md
-    from motion_ctrl.ros.processes import start_slide
+    from motion_ctrl.ros.processes import start_sim, start_slide
 
     axes = [f'a{i}' for i in range(n_axes)] if n_axes > 1 else ['x']
     axes_param = '[' + ','.join(axes) + ']'
     # Many axes: integrate the physics at the servo rate only, so the plant keeps up; the
     # controller's loop is what is measured.
     substep = 20000.0 if n_axes <= 6 else rate
-    plant, controller = start_slide(
-        {'axes': axes_param, 'servo_rate': float(rate)},
-        {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep},
-        params_files=False)
+    if hardware == 'sim':
+        nodes = start_sim({'axes': axes_param, 'servo_rate': float(rate)},
+                          {'substep_rate': substep}, params_files=False)
+    else:
+        nodes = start_slide(
+            {'axes': axes_param, 'servo_rate': float(rate)},
+            {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep},
+            params_files=False)
+    controller = nodes[-1]
     node = Node('bench_observer')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -249,14 +257,15 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
         spin(seconds)
         cpu1, t1 = sum(_cpu_seconds(p) for p in pids), time.monotonic()
         loops = list(diags)
-        node.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
-        spin(1.0)                                         # discovery of the new reader
-        transport.clear()
-        spin(2.0)
+        if hardware == 'topics':
+            node.create_subscription(JointState, md.COMMAND, on_command, md.SERVO_READ_QOS)
+            spin(1.0)                                     # discovery of the new reader
+            transport.clear()
+            spin(2.0)
     finally:
         node.destroy_node()
         executor.shutdown()
-        for n in (controller, plant):
+        for n in reversed(nodes):
             n.stop()
     if not loops:
         return {'error': 'no diagnostics'}
@@ -270,8 +279,10 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0) -> dict:
         'work_us': f('tick_work_mean_us'),
         'cpu_us_per_tick': (cpu1 - cpu0) / ticks * 1e6 if ticks else float('nan'),
         'cpu_pct': 100 * (cpu1 - cpu0) / (t1 - t0),
-        'feedback_age_p50_us': f('feedback_age_p50_us'),
-        'feedback_age_p99_us': f('feedback_age_p99_us'),
+        'feedback_age_p50_us': f('feedback_age_p50_us') if 'feedback_age_p50_us' in loops[0]
+        else float('nan'),
+        'feedback_age_p99_us': f('feedback_age_p99_us') if 'feedback_age_p99_us' in loops[0]
+        else float('nan'),
         'command_transport_p50_us': _pct(transport, 50) * 1e6,
         'command_transport_p99_us': _pct(transport, 99) * 1e6,
     }
@@ -358,7 +369,9 @@ def main(argv=None) -> int:
                     help='comma-separated subset of core,floor,dds,lockstep,canopen')
     ap.add_argument('--seconds', type=float, default=5.0, help='per DDS measurement')
     ap.add_argument('--rates', default='1000,2000', help='servo rates of the dds section [Hz]')
-    ap.add_argument('--axes', default='1,6,64', help='axis counts of the dds section')
+    ap.add_argument('--axes', default='1,6,64,256', help='axis counts of the dds section')
+    ap.add_argument('--hardware', default='topics,sim',
+                    help='comma-separated hardware of the dds and lockstep sections')
     a = ap.parse_args(argv)
     sections = a.sections.split(',')
     from motion_ctrl.ros.processes import PRIVATE_NET, private_network
@@ -400,34 +413,41 @@ def main(argv=None) -> int:
                 r = fn(rate)
                 print(f'| {name} @ {rate:g} Hz | {r["rate_hz"]:.1f} | {r["jitter_p50_us"]:.0f} | '
                       f'{r["jitter_p99_us"]:.0f} | {r["jitter_max_us"]:.0f} |')
+    hardwares = a.hardware.split(',')
     if 'dds' in sections:
-        print('\n## dds (plant + controller as two processes)\n')
-        print('| servo rate | axes | achieved [Hz] | % of nominal | jitter p50 / p99 / max [µs] '
-              '| work per tick [µs] | controller CPU per tick [µs] (CPU %) | '
+        print('\n## dds (the controller in real time; topics: plant + controller as two processes, '
+              'sim: the controller alone)\n')
+        print('| hardware | servo rate | axes | achieved [Hz] | % of nominal | jitter p50 / p99 / '
+              'max [µs] | work per tick [µs] | controller CPU per tick [µs] (CPU %) | '
               'encoder → tick p50 / p99 [µs] | command → plant p50 / p99 [µs] |'
-              '\n|---:|---:|---:|---:|---|---:|---|---|---|')
+              '\n|---|---:|---:|---:|---:|---|---:|---|---|---|')
         for rate in (float(x) for x in a.rates.split(',')):
             for n in (int(x) for x in a.axes.split(',')):
-                r = bench_dds(rate, n, a.seconds)
-                if 'error' in r:
-                    print(f'| {rate:g} | {n} | {r["error"]} | | | | | | |')
-                    continue
-                print(f'| {rate:g} | {n} | {r["rate_hz"]:.1f} | {r["rate_pct"]:.1f} | '
-                      f'{r["jitter_p50_us"]:.0f} / {r["jitter_p99_us"]:.0f} / '
-                      f'{r["jitter_max_us"]:.0f} | {r["work_us"]:.0f} | '
-                      f'{r["cpu_us_per_tick"]:.0f} ({r["cpu_pct"]:.0f} %) | '
-                      f'{r["feedback_age_p50_us"]:.0f} / {r["feedback_age_p99_us"]:.0f} | '
-                      f'{r["command_transport_p50_us"]:.0f} / '
-                      f'{r["command_transport_p99_us"]:.0f} |')
+                for hw in hardwares:
+                    r = bench_dds(rate, n, a.seconds, hw)
+                    if 'error' in r:
+                        print(f'| {hw} | {rate:g} | {n} | {r["error"]} | | | | | | |')
+                        continue
+                    transport = (f'{r["command_transport_p50_us"]:.0f} / '
+                                 f'{r["command_transport_p99_us"]:.0f}' if hw == 'topics'
+                                 else '(in the loop)')
+                    age = (f'{r["feedback_age_p50_us"]:.0f} / {r["feedback_age_p99_us"]:.0f}'
+                           if math.isfinite(r['feedback_age_p50_us']) else '')
+                    print(f'| {hw} | {rate:g} | {n} | {r["rate_hz"]:.1f} | {r["rate_pct"]:.1f} | '
+                          f'{r["jitter_p50_us"]:.0f} / {r["jitter_p99_us"]:.0f} / '
+                          f'{r["jitter_max_us"]:.0f} | {r["work_us"]:.0f} | '
+                          f'{r["cpu_us_per_tick"]:.0f} ({r["cpu_pct"]:.0f} %) | {age} | '
+                          f'{transport} |', flush=True)
     if 'lockstep' in sections:
         try:
             from motion_ctrl.ros.lockstep import bench_lockstep
         except ImportError:
             print('\n## lockstep: not available')
         else:
-            print('\n## lockstep\n')
-            speed = bench_lockstep()
-            print(f'sim seconds per wall second: {speed:.2f}')
+            print('\n## lockstep (one axis, the 1-inch move)\n')
+            for hw in hardwares:
+                speed = bench_lockstep(hw)
+                print(f'{hw}: sim seconds per wall second: {speed:.2f}', flush=True)
     if 'canopen' in sections:
         print('\n## canopen (controller + virtual_drive, udp_multicast in a private network '
               'namespace, 1 Mbit/s)\n')

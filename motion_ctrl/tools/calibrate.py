@@ -11,8 +11,9 @@ afterwards feedback and compensation are put back as they were, or, with `--appl
 tables are loaded (from the YAML file written) and the test is run again.
 
 `--spawn` starts the simulated slide itself (plant and controller as two processes, as the demo
-does), `--lockstep` as the deterministic lockstep simulation, `--plant NAME:=VALUE` changes the
-simulated slide.
+does, or `--hardware sim`: the controller alone with the slide in its loop), `--lockstep` as the
+deterministic lockstep simulation (by default the controller alone, its own clock, as fast as the
+machine allows), `--plant NAME:=VALUE` changes the simulated slide.
 """
 from __future__ import annotations
 
@@ -325,13 +326,24 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+def spawned_hardware(args) -> str:
+    """The hardware of the slide --spawn starts: --hardware, else sim in lockstep (one process,
+    the fastest) and topics in real time (plant and controller, as the demo)."""
+    return args.hardware or ('sim' if args.lockstep else 'topics')
+
+
 def _spawn(args, out: pathlib.Path):
-    """Plant and controller processes, in lockstep if asked (lockstep.start_slide)."""
+    """The simulated slide's processes (lockstep.start_slide, processes.start_slide or
+    start_sim)."""
     from motion_ctrl.ros import lockstep
-    from motion_ctrl.ros.processes import start_slide
+    from motion_ctrl.ros.processes import start_sim, start_slide
     plant_params = dict(p.split(':=', 1) for p in args.plant)
     controller_params = dict(p.split(':=', 1) for p in args.controller)
-    start = lockstep.start_slide if args.lockstep else start_slide
+    hardware = spawned_hardware(args)
+    if args.lockstep:
+        return lockstep.start_slide(controller_params, plant_params, log_dir=out,
+                                    hardware=hardware)
+    start = start_sim if hardware == 'sim' else start_slide
     return start(controller_params, plant_params, log_dir=out)
 
 
@@ -344,6 +356,10 @@ def session_arguments(ap: argparse.ArgumentParser, tool: str, plant_example: str
                     help='start the simulated slide (plant + controller processes) for the run')
     ap.add_argument('--lockstep', action='store_true',
                     help='with --spawn: the deterministic lockstep simulation')
+    ap.add_argument('--hardware', choices=('sim', 'topics'), default=None,
+                    help='with --spawn: the slide inside the controller\'s loop (sim: one '
+                         'process; the default with --lockstep) or a plant node beside it '
+                         '(topics: two processes; the default in real time)')
     ap.add_argument('--plant', action='append', default=[], metavar='NAME:=VALUE',
                     help=f'with --spawn: a plant parameter, e.g. {plant_example}')
     ap.add_argument('--controller', action='append', default=[], metavar='NAME:=VALUE',
@@ -379,7 +395,7 @@ def axis_session(args, tool: str, services: bool = False):
     try:
         if not client.wait_ready(30.0):
             raise CalibrationError(f'the controller is not ready ({client.not_ready()})')
-        if nodes:
+        if nodes and spawned_hardware(args) == 'topics':
             # Just started: the controller closes its loop on the first encoder samples, maybe
             # before its `command` reaches the plant (a move then runs into
             # FOLLOWING_ERROR_FATAL on a motor that does not turn). Wait until the graph shows
@@ -410,7 +426,8 @@ def main(argv=None) -> int:
     except CalibrationError as e:
         print(f'calibrate: {e}', file=sys.stderr)
         return 1
-    mode = ('lockstep simulation' if args.lockstep else 'DDS') if args.spawn else 'DDS'
+    mode = (f'{"lockstep simulation" if args.lockstep else "real time"}, hardware '
+            f'{spawned_hardware(args)}') if args.spawn else 'DDS'
     print(f'calibrate: done in {time.monotonic() - start:.1f} s ({mode}; tests '
           + ', '.join(f'{k} {v:.1f} s' for k, v in result['seconds'].items()) + ')')
     return 0 if math.isfinite(result['before'].B) else 1

@@ -1,7 +1,8 @@
 """The demo: the Galil manual's 1-inch move on the simulated backlash slide, over ROS.
 
-Starts the plant and the controller as two processes (params/plant.yaml, controller.yaml),
-commands a 1-inch forward move, then the headline move after a reversal (+2 in, back to +1 in),
+Starts the plant and the controller as two processes (params/plant.yaml, controller.yaml), or
+with `--hardware sim` the controller alone with the slide simulated inside its loop, commands a
+1-inch forward move, then the headline move after a reversal (+2 in, back to +1 in),
 prints the true slide error (from plant_states) in linear counts and the time to MOTION_DONE,
 and stops both nodes with SIGINT. The moves are recorded into a rosbag2 (MCAP) bag and drawn
 by the report tool next to it (out/demo-<time>/).
@@ -30,8 +31,9 @@ def main(argv=None) -> int:
                     help='override x.feedback (default: params/controller.yaml)')
     ap.add_argument('-o', '--out', default=None,
                     help='directory for logs, bag and plot (default out/demo-<time>)')
-    ap.add_argument('--hardware', default='topics', choices=('topics', 'canopen'),
-                    help='topics: the plant node (default); canopen: an emulated CiA 402 drive '
+    ap.add_argument('--hardware', default='topics', choices=('topics', 'sim', 'canopen'),
+                    help='topics: plant node + controller (default); sim: the controller alone, '
+                         'the slide simulated in its loop; canopen: an emulated CiA 402 drive '
                          'and CiA 406 encoder on a CAN bus')
     ap.add_argument('--realtime-priority', type=int, default=0,
                     help='SCHED_FIFO priority of both nodes (realtime_priority; 0: normal)')
@@ -51,7 +53,7 @@ def main(argv=None) -> int:
     domain = ros_env.private_domain()
     import rclpy
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import CAN_BUS, start_canopen, start_slide
+    from motion_ctrl.ros.processes import CAN_BUS, start_canopen, start_sim, start_slide
     from motion_ctrl.tools.record import Recorder
     from motion_ctrl.tools.report import ReportError, format_summary, make_report
 
@@ -78,8 +80,11 @@ def main(argv=None) -> int:
                                                 'x.load_encoder_node_id': encoder},
                               rt | {'x.load_encoder_node_id': encoder}, log_dir=out)
     else:
-        print(f'demo: starting plant and controller (ROS_DOMAIN_ID={domain}, logs in {out})')
-        nodes = start_slide(overrides, log_dir=out)
+        what = ('plant and controller' if args.hardware == 'topics'
+                else 'the controller (hardware sim)')
+        print(f'demo: starting {what} (ROS_DOMAIN_ID={domain}, logs in {out})')
+        nodes = (start_slide if args.hardware == 'topics' else start_sim)(overrides,
+                                                                         log_dir=out)
     rclpy.init()
     client = SlideClient()
     recorder = None
@@ -90,7 +95,7 @@ def main(argv=None) -> int:
                   file=sys.stderr)
             return 1
         from motion_ctrl.tools.record import SERVO_TOPICS
-        # (canopen: the servo traffic is on the CAN bus, there is no command / encoders topic)
+        # (sim, canopen: the servo traffic is not on ROS, there is no command / encoders topic)
         topics = None if args.hardware == 'topics' else [
             t for t in SERVO_TOPICS if t not in ('command', 'encoders')]
         recorder = Recorder(bag, topics, discover_status=True).start()
