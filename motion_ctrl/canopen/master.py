@@ -27,9 +27,9 @@ The cycle (`read` / `write` of ServoLoop.cycle), as a CANopen manager's task run
   the RPDO at this SYNC and sample their TPDOs, which the next cycle reads. The loop's delay is
   one period (the sample's age), which the loop takes out as it does a network's.
 
-The CiA 402 state machine follows the axis: `enable(axis, True)` walks the drive through
-shutdown, switch on, enable operation (one transition a cycle, from the statusword it
-reports); `enable(axis, False)` (ABORT, disable, a fault) is disable voltage; `reset` is a fault
+The CiA 402 state machine follows the axis's loop (AxisIO.enabled): its closing walks the drive
+through shutdown, switch on, enable operation (one transition a cycle, from the statusword it
+reports); its opening (ABORT, disable, a fault) is disable voltage; `reset` is a fault
 reset (a rising edge of controlword bit 7), and a FAULT the drive reports from a sample taken
 before the reset took effect is not reported again. An axis with a quick stop deceleration
 (`estop_quick_stop`) has the drive quick-stop (controlword 02h) while its status says ESTOPPED
@@ -54,7 +54,7 @@ from motion_ctrl.canopen import cia402 as c
 from motion_ctrl.canopen.objects import (DRIVE_EDS, ENCODER_EDS, ENCODER_TPDO1, PDO_NOT_VALID,
                                          RPDO1, SYNCHRONOUS, TPDO1, Pdo, cycle_frames,
                                          drive_pdos, mapping_entry)
-from motion_ctrl.core.hardware import DRIVE, LINK, FeedbackSink, HardwareError, HardwareInterface
+from motion_ctrl.core.hardware import DRIVE, LINK, HardwareError, HardwareInterface
 from msg_defs.status import Status
 
 _ESTOPPED = int(Status.ESTOPPED)
@@ -195,6 +195,7 @@ class CanopenHardware(HardwareInterface):
         self._started = 0.0
         self._axes: dict = {}               # the servo loop's axes (watch): their status
         self._said: set[str] = set()        # what went wrong, logged once
+        self._faults_now: dict[str, tuple[str, str]] = {}   # this read's: axis -> (kind, why)
         self._window: list[float] = []      # SYNC -> TPDO since the last `figures`
         self._intervals: list[float] = []   # between SYNCs [s, monotonic], likewise
         self._to_rpdo: list[float] = []     # SYNC -> the RPDO computed from its samples
@@ -458,21 +459,30 @@ class CanopenHardware(HardwareInterface):
             self.network = None
 
     # -- the cycle -------------------------------------------------------------------------------
-    def read(self, now: float, sink: FeedbackSink) -> None:
+    def read(self, now: float) -> None:
+        self._faults_now = {}
         try:
-            self._read(sink)
+            self._read()
         except Exception as e:      # the servo loop never dies of its I/O: a link fault
             reason = f'canopen: reading the bus failed: {e!r}'
             self._once('error', reason)
             for a in self.axes:
-                sink.fault(a, LINK, reason)
+                self._fault(a, LINK, reason)
+        for a, io in self.io.items():       # (a fault is set while it lasts)
+            io.fault_kind, io.fault_reason = self._faults_now.get(a, ('', ''))
+
+    def _fault(self, a: str, kind: str, reason: str) -> None:
+        """A fault of axis `a` this read (a link fault before a drive's: what the drive says
+        cannot be trusted without the link)."""
+        if a not in self._faults_now or kind == LINK and self._faults_now[a][0] != LINK:
+            self._faults_now[a] = (kind, reason)
 
     def _once(self, level: str, text: str) -> None:
         if text not in self._said:
             self._said.add(text)
             self._log(level, text)
 
-    def _read(self, sink: FeedbackSink) -> None:
+    def _read(self) -> None:
         n = self.sync_count
         self.cycles += 1
         complete = True
@@ -485,17 +495,17 @@ class CanopenHardware(HardwareInterface):
                 if sample is not None:
                     k, motor, load, arrived = sample
                     x.used = k
-                    sink.feedback(a, motor, load, self._sync_stamp[k])
+                    self.io[a].sample(motor, load, self._sync_stamp[k])
                     if k == n:
                         last = max(last, arrived)
                     else:
                         complete = False
                 else:
                     complete = False
-                self._faults(a, x, tp[0], sink)
+                self._faults(a, x, tp[0])
             else:
                 complete = False
-            self._link(a, x, mono, sink)
+            self._link(a, x, mono)
             while x.emcy:
                 nid, code, register = x.emcy.popleft()
                 self._log('error' if code else 'info',
@@ -522,58 +532,60 @@ class CanopenHardware(HardwareInterface):
                 return k, TPDO1.codec.unpack(data)[1], _load(ld[1]), max(arrived, ld[2])
         return None
 
-    def _faults(self, a: str, x: _Axis, n: int, sink: FeedbackSink) -> None:
+    def _faults(self, a: str, x: _Axis, n: int) -> None:
         state = c.state_of(x.statusword)
         if c.is_fault(x.statusword) and n > x.ignore_fault_until:
             x.fault = (f'node {x.cfg.node_id}: drive {state}, error code 603Fh = '
                        f'0x{x.error_code:04X} ({_describe(x.error_code)})')
-            sink.fault(a, DRIVE, x.fault)
+            self._fault(a, DRIVE, x.fault)
             return
         x.fault = None
         if x.quick_stop:
             x.want_since = time.monotonic()     # (disabled on purpose: the ESTOP's quick stop)
         elif x.want and state != c.OPERATION_ENABLED and n > x.ignore_fault_until and \
                 time.monotonic() - x.want_since > ENABLE_TIMEOUT:
-            sink.fault(a, DRIVE, f'node {x.cfg.node_id}: not OPERATION ENABLED '
+            self._fault(a, DRIVE, f'node {x.cfg.node_id}: not OPERATION ENABLED '
                                  f'{ENABLE_TIMEOUT:g} s after enable: {state} (statusword '
                                  f'0x{x.statusword:04X})')
 
-    def _link(self, a: str, x: _Axis, mono: float, sink: FeedbackSink) -> None:
+    def _link(self, a: str, x: _Axis, mono: float) -> None:
         for nid, (t, state) in x.heartbeat.items():
             if state == 5:
                 x.operational.add(nid)
             if mono - t > HEARTBEAT_LOST * HEARTBEAT_MS / 1000:
-                sink.fault(a, LINK, f'node {nid}: no heartbeat for {(mono - t) * 1e3:.0f} ms')
+                self._fault(a, LINK, f'node {nid}: no heartbeat for {(mono - t) * 1e3:.0f} ms')
             elif state != 5 and nid in x.operational:
-                sink.fault(a, LINK, f'node {nid} left OPERATIONAL (heartbeat: NMT state '
+                self._fault(a, LINK, f'node {nid} left OPERATIONAL (heartbeat: NMT state '
                                     f'{_NMT.get(state, state)})')
             elif state != 5 and mono - self._started > START_TIMEOUT:
-                sink.fault(a, LINK, f'node {nid} is not OPERATIONAL {START_TIMEOUT:g} s after '
+                self._fault(a, LINK, f'node {nid} is not OPERATIONAL {START_TIMEOUT:g} s after '
                                     f'its NMT start (heartbeat: NMT state '
                                     f'{_NMT.get(state, state)})')
 
-    def write(self, now: float, names: list[str], outputs: list[float]) -> None:
+    def write(self, now: float) -> None:
         try:
-            self._write(now, names, outputs)
+            self._write(now)
         except Exception as e:      # (a full send queue, a bus gone): the next cycle tries
             self._once('error', f'canopen: sending failed (logged once): {e!r}; the drives\' '
                                 f'watchdogs stop them if it lasts')
 
-    def _write(self, now: float, names: list[str], outputs: list[float]) -> None:
+    def _write(self, now: float) -> None:
         network = self.network
         if network is None:
             return
-        out = dict(zip(names, outputs))
         mono = time.monotonic()
         n_used = self.sync_count
         axes = self._axes
         for x in self._ax.values():
+            io = self.io[x.name]
+            if io.enabled != x.want:            # the loop closed or opened: the drive follows
+                self._enable(x, io.enabled)
             x.quick_stop = bool(x.cfg.quick_stop_deceleration and x.want and x.name in axes
                                 and axes[x.name].status & _ESTOPPED)
             cw = c.CW_QUICK_STOP if x.quick_stop else self._controlword(x)
             torque = 0
             if x.want and c.state_of(x.statusword) == c.OPERATION_ENABLED:
-                volts = out.get(x.name, 0.0)
+                volts = io.output if io.commanded else 0.0
                 torque = max(-32767, min(32767, round(volts * x.cfg.torque_per_volt)))
             network.send_message(RPDO1.cob_id(x.cfg.node_id), RPDO1.codec.pack(cw, torque))
             x.cw = cw
@@ -599,8 +611,7 @@ class CanopenHardware(HardwareInterface):
             return c.CW_FAULT_RESET
         return c.master_controlword(c.state_of(x.statusword), x.want)
 
-    def enable(self, axis: str, on: bool) -> None:
-        x = self._ax[axis]
+    def _enable(self, x: _Axis, on: bool) -> None:
         if on and not x.want:
             x.want_since = time.monotonic()
         x.want = on
