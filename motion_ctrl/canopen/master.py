@@ -60,8 +60,9 @@ from msg_defs.status import Status
 _ESTOPPED = int(Status.ESTOPPED)
 
 HEARTBEAT_MS = 100              # 1017h written to every node
-HEARTBEAT_LOST = 2.5            # heartbeat periods without one: the node is lost (CiA 301
-                                # consumer time ≥ producer time; 2.5 rides out one lost frame)
+HEARTBEAT_LOST = 5              # heartbeat periods without one: the node is lost (CiA 301:
+                                # consumer time > producer time; a drive with no TPDOs is found
+                                # by feedback_timeout long before, this is for the NMT link)
 SDO_TIMEOUT = 0.3               # s for an SDO answer (canopen's default)
 BOOT_TIMEOUT = 5.0              # s a node may take to answer its first SDO (it may be booting)
 ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED

@@ -34,6 +34,7 @@ What a drive on the bus does, emulated:
 from __future__ import annotations
 
 import math
+import os
 import struct
 import threading
 import time
@@ -59,6 +60,7 @@ DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
 # slide instead (the SYNC is its clock)
 FREE_RUN = 0.1
 RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look
+RECEIVE_PRIORITY = 40               # SCHED_FIFO of the receive thread in real time (0: none)
 HEARTBEAT_MS = 100                  # producer heartbeat at boot-up (the master may change it)
 RPDO_TIMEOUT = 0x8250
 # SDO abort codes (CiA 301)
@@ -367,13 +369,15 @@ class VirtualDrives:
 
     def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
                  bitrate: int = 1_000_000, substep_rate: float = 20000.0,
-                 realtime: bool = True, log: Callable[[str, str], None] | None = None) -> None:
+                 realtime: bool = True, log: Callable[[str, str], None] | None = None,
+                 priority: int = RECEIVE_PRIORITY) -> None:
         """`realtime`: the drives' own clock runs the slides when SYNCs stop; off, the drives
         only follow the SYNCs (a lockstep run)."""
         self.bus_args: dict[str, Any] = {'interface': interface, 'channel': channel,
                                          'bitrate': bitrate}
         self.axes = {a: VirtualAxis(a, cfg, substep_rate) for a, cfg in axes.items()}
         self.realtime = realtime
+        self.priority = priority
         self._log = log or (lambda level, text: None)
         self._failed: set[str] = set()      # what went wrong in the receive thread (logged once)
         self.network = canopen.Network()
@@ -418,6 +422,14 @@ class VirtualDrives:
         self.network.disconnect()
 
     def _receive(self) -> None:
+        if self.realtime and self.priority:
+            # A drive is hardware: its cycle does not wait on the PC's scheduler. This thread
+            # alone runs at SCHED_FIFO (where allowed: root, CAP_SYS_NICE, an rtprio limit).
+            try:
+                os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO,
+                                      os.sched_param(self.priority))
+            except (OSError, AttributeError) as e:
+                self._log('info', f'virtual drives: normal scheduling ({e})')
         bus, network = self.network.bus, self.network
         assert bus is not None
         while not self._stop.is_set():
