@@ -519,3 +519,138 @@ class VirtualDrives:
             vel += [p.v_m, p.v_l]
             volts.append(p.volts)
         return pos, vel, volts
+
+
+# -- the emulated drives in a process of their own ----------------------------------------------
+_STATES = (c.NOT_READY, c.SWITCH_ON_DISABLED, c.READY, c.SWITCHED_ON, c.OPERATION_ENABLED,
+           c.QUICK_STOP_ACTIVE, c.FAULT_REACTION, c.FAULT)
+SHARE_PERIOD = 1e-3                 # s: how often the drives' process shares the slides' state
+
+
+class DrivesProcess:
+    """`VirtualDrives` in a process of their own, beside the one that publishes them: a drive
+    is hardware, and the emulated drives' thread must not share an interpreter (its lock) with
+    a ROS node's threads. The slides' state comes back through shared memory (SHARE_PERIOD);
+    fault injection and plant registers go there through a queue; the drives' log lines come
+    back through another."""
+
+    def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
+                 bitrate: int = 1_000_000, substep_rate: float = 20000.0) -> None:
+        import multiprocessing
+        ctx = multiprocessing.get_context('spawn')     # (never fork a process with ROS threads)
+        self.names = list(axes)
+        n = len(axes)
+        # time, then per axis x_m, x_l, v_m, v_l, volts; and per axis state index, error code
+        self._floats = ctx.Array('d', 1 + 5 * n)
+        self._ints = ctx.Array('i', 2 * n)
+        self._commands = ctx.Queue()
+        self._logs = ctx.Queue()
+        self._stop = ctx.Event()
+        self._started = ctx.Event()
+        self._proc = ctx.Process(target=_serve, name='virtual drives', daemon=True, args=(
+            axes, interface, channel, bitrate, substep_rate, self._floats, self._ints,
+            self._commands, self._logs, self._stop, self._started))
+
+    def start(self, timeout: float = 30.0) -> None:
+        """Start the drives; raises RuntimeError with the reason when their bus cannot open."""
+        self._proc.start()
+        end = time.monotonic() + timeout
+        while not self._started.wait(0.05):
+            if not self._proc.is_alive() or time.monotonic() > end:
+                reasons = [text for level, text in self.logs() if level == 'fatal']
+                self.stop()
+                raise RuntimeError(reasons[0] if reasons else 'the drives did not start')
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._proc.join(2.0)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join(1.0)
+
+    def inject_fault(self, axis: str, code: int) -> None:
+        self._commands.put(('fault', axis, code))
+
+    def configure_plant(self, axis: str, changes: dict) -> None:
+        """(validated by the caller; a refusal there is logged)"""
+        self._commands.put(('plant', axis, changes))
+
+    def truth(self) -> tuple[float, list[float], list[float], list[float]]:
+        """As VirtualDrives.truth, as the drives' process last shared it."""
+        with self._floats.get_lock():
+            f = self._floats[:]
+        pos, vel, volts = [], [], []
+        for i in range(len(self.names)):
+            x_m, x_l, v_m, v_l, v = f[1 + 5 * i:6 + 5 * i]
+            pos += [x_m, x_l]
+            vel += [v_m, v_l]
+            volts.append(v)
+        return f[0], pos, vel, volts
+
+    def states(self) -> list[tuple[str, int]]:
+        """Per axis: the drive's state and its error code (603Fh)."""
+        with self._ints.get_lock():
+            i = self._ints[:]
+        return [(_STATES[i[2 * k]], i[2 * k + 1]) for k in range(len(self.names))]
+
+    def logs(self) -> list[tuple[str, str]]:
+        """The drives' log lines since the last call."""
+        import queue
+        lines = []
+        while True:
+            try:
+                lines.append(self._logs.get_nowait())
+            except queue.Empty:
+                return lines
+
+
+def _serve(axes, interface, channel, bitrate, substep_rate, floats, ints, commands, logs, stop,
+           started) -> None:
+    """The drives' process: VirtualDrives in real time, their state shared every SHARE_PERIOD,
+    commands applied as they come; ends with `stop` or with its parent."""
+    import ctypes
+    import queue
+    import signal
+    try:                            # (Linux: SIGKILL when the parent dies)
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+    signal.signal(signal.SIGINT, signal.SIG_IGN)    # (the parent stops it)
+    drives = VirtualDrives(axes, interface, channel, bitrate, substep_rate,
+                           log=lambda level, text: logs.put((level, text)))
+    try:
+        drives.start()
+    except Exception as e:          # python-can raises per interface
+        logs.put(('fatal', f'cannot open the bus (can_interface {interface!r}, can_channel '
+                           f'{channel!r}): {e}'))
+        return
+    started.set()
+    index = {s: i for i, s in enumerate(_STATES)}
+    try:
+        while not stop.wait(SHARE_PERIOD):
+            t, pos, vel, volts = drives.truth()
+            with drives.lock:
+                codes = [(index.get(ax.sm.state, 0), ax.sm.error_code)
+                         for ax in drives.axes.values()]
+            with floats.get_lock():
+                floats[0] = t
+                for i in range(len(volts)):
+                    floats[1 + 5 * i:6 + 5 * i] = [pos[2 * i], pos[2 * i + 1], vel[2 * i],
+                                                   vel[2 * i + 1], volts[i]]
+            with ints.get_lock():
+                for i, (state, code) in enumerate(codes):
+                    ints[2 * i:2 * i + 2] = [state, code]
+            while True:
+                try:
+                    what, axis, value = commands.get_nowait()
+                except queue.Empty:
+                    break
+                try:
+                    if what == 'fault':
+                        drives.inject_fault(axis, value)
+                    else:
+                        drives.configure_plant(axis, value)
+                except ValueError as e:
+                    logs.put(('error', f'{axis}: plant registers not applied: {e}'))
+    finally:
+        drives.stop()

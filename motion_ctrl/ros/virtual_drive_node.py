@@ -20,7 +20,7 @@ from __future__ import annotations
 import sys
 
 from motion_ctrl.canopen import cia402 as c
-from motion_ctrl.canopen.virtual_drive import RPDO_TIMEOUT, DriveConfig, VirtualDrives
+from motion_ctrl.canopen.virtual_drive import RPDO_TIMEOUT, DriveConfig, DrivesProcess
 from motion_ctrl.core.hardware import HardwareError
 from motion_ctrl.core.registers import (PLANT_AXIS, VIRTUAL_DRIVE_AXIS, VIRTUAL_DRIVE_GLOBALS,
                                         plant_consistency)
@@ -52,15 +52,14 @@ class VirtualDriveNode(ros_params.RegisterNode):
                 plant={k: x for k, x in v.items() if k in PLANT_AXIS},
                 device_type=v['device_type'], supported_modes=v['supported_modes'],
                 refuse_mapping=v['refuse_mapping'])
-        self.drives = VirtualDrives(configs, g['can_interface'], g['can_channel'],
-                                    g['can_bitrate'], substep_rate=g['substep_rate'],
-                                    log=self._drive_log)
+        # The drives run in a process of their own (DrivesProcess): their thread answers the
+        # SYNCs without waiting on this one's interpreter
+        self.drives = DrivesProcess(configs, g['can_interface'], g['can_channel'],
+                                    g['can_bitrate'], substep_rate=g['substep_rate'])
         try:
             self.drives.start()
-        except Exception as e:      # python-can raises per interface
-            raise HardwareError(f'virtual_drive: cannot open the bus (can_interface '
-                                f'{g["can_interface"]!r}, can_channel {g["can_channel"]!r}): '
-                                f'{e}') from None
+        except RuntimeError as e:
+            raise HardwareError(f'virtual_drive: {e}') from None
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._apply)
         self.states = PlantStates(self, self.axis_names, {
@@ -68,15 +67,13 @@ class VirtualDriveNode(ros_params.RegisterNode):
         self.reported = {a: (c.SWITCH_ON_DISABLED, 0) for a in self.axis_names}
         self._published = -1.0
         self._truth: list = []
+        self._states: list[tuple[str, int]] = []
         self.timer = self.create_timer(1.0 / PUBLISH_RATE, self._publish)
         ids = ', '.join(f'{a}: drive {v["can_node_id"]}' + (
             f', encoder {v["load_encoder_node_id"]}' if v['load_encoder_node_id'] else '')
             for a, v in self.values.items())
         self.get_logger().info(f'CiA 402 drives on {g["can_interface"]} {g["can_channel"]} '
                                f'({ids}): waiting for the master')
-
-    def _drive_log(self, level: str, text: str) -> None:
-        (self.get_logger().error if level == 'error' else self.get_logger().info)(text)
 
     def _plant_consistency(self, values: dict) -> list[str]:
         return plant_consistency({k: v for k, v in values.items() if k in PLANT_AXIS})
@@ -87,10 +84,10 @@ class VirtualDriveNode(ros_params.RegisterNode):
     def _apply(self, params) -> None:
         for axis, changes in self.axis_changes(params).items():
             plant = {k: v for k, v in changes.items() if k in PLANT_AXIS}
-            if plant:
+            if plant:                  # (validated with the table's rules by `validate`)
                 self.drives.configure_plant(axis, plant)
                 self.states.command_timeout[axis] = \
-                    self.drives.axes[axis].plant.params['command_timeout']
+                    plant.get('command_timeout', self.states.command_timeout[axis])
             code = changes.get('inject_fault', 0)
             if code and code != self.values[axis]['inject_fault']:
                 self.drives.inject_fault(axis, code)
@@ -105,16 +102,19 @@ class VirtualDriveNode(ros_params.RegisterNode):
         if when != self._published:
             self._published = when
             self.states.publish(stamp_of(when), self)
-        for a, ax in self.drives.axes.items():
-            now = (ax.sm.state, ax.sm.error_code)
+        for level, text in self.drives.logs():
+            (self.get_logger().error if level == 'error' else self.get_logger().info)(text)
+        self._states = self.drives.states()
+        for a, now in zip(self.axis_names, self._states):
             if now == self.reported[a]:
                 continue
             state, code = now
+            node = self.values[a]['can_node_id']
             if state == c.FAULT and code:
-                self.get_logger().error(f'{a}: drive node {ax.config.node_id}: FAULT, error code '
+                self.get_logger().error(f'{a}: drive node {node}: FAULT, error code '
                                         f'0x{code:04X}: torque 0, dynamic brake on')
             elif self.reported[a][0] == c.FAULT:
-                self.get_logger().info(f'{a}: drive node {ax.config.node_id}: fault reset')
+                self.get_logger().info(f'{a}: drive node {node}: fault reset')
             self.reported[a] = now
 
     # -- what PlantStates publishes --------------------------------------------------------------
@@ -126,8 +126,8 @@ class VirtualDriveNode(ros_params.RegisterNode):
 
     def tripped(self) -> list[bool]:
         """The communication watchdog holds the drive in its fault."""
-        return [ax.sm.state in (c.FAULT, c.FAULT_REACTION) and ax.sm.error_code == RPDO_TIMEOUT
-                for ax in self.drives.axes.values()]
+        return [state in (c.FAULT, c.FAULT_REACTION) and code == RPDO_TIMEOUT
+                for state, code in self._states]
 
     def destroy_node(self) -> None:
         self.drives.stop()
