@@ -17,7 +17,9 @@ the node exits 2. `activate` starts the nodes (NMT OPERATIONAL).
 
 The cycle (`read` / `write` of ServoLoop.cycle), as a CANopen manager's task runs it:
 
-* `read`: the newest TPDOs, sampled by the drives at a SYNC (normally the last), become each
+* `read`: the frames waiting on the bus are taken (by the servo thread itself: from `activate`
+  on there is no receive thread, which would wait on the interpreter's lock while the loop
+  ticks on); the newest TPDOs, sampled by the drives at a SYNC (normally the last), become each
   axis's sample (motor 6064h, load 60E4h or the encoder's 6004h), stamped with that SYNC's
   time (`_Slot`: which SYNC a frame answers is counted); an axis whose TPDOs of no newer SYNC
   have all come has no new sample (a missing sample: feedback_timeout counts it). The
@@ -69,6 +71,7 @@ ENABLE_TIMEOUT = 0.5            # s for a drive to reach OPERATION ENABLED
 START_TIMEOUT = 2.0             # s for a node to say OPERATIONAL after its NMT start
 RESET_CYCLES = 2                # samples after a fault reset that may still show the fault
 NOTIFIER_CYCLE = 0.1            # s: the receive thread's poll (how long a stop waits for it)
+RECEIVE_MAX = 1000              # frames taken off the bus at most in one read
 KEPT = 8                        # frames kept per TPDO (their SYNCs: the last KEPT)
 WINDOW = 200                    # frames over which a TPDO count's lag is judged
 STATS = 100_000                 # cycles of latency kept for the benchmark
@@ -437,6 +440,22 @@ class CanopenHardware(HardwareInterface):
                     node.nmt.state = 'OPERATIONAL'
                     x.heartbeat[node.id] = (now, x.heartbeat[node.id][1])
         self._started = now
+        # From now on the servo thread takes the frames off the bus itself at each read (no
+        # receive thread to wait on the interpreter's lock while the loop ticks on).
+        notifier = self.network.notifier
+        if notifier is not None:
+            self.network.notifier = None
+            notifier.stop()
+
+    def _receive(self) -> None:
+        """Every frame waiting on the bus, to its handlers (TPDOs, heartbeats, EMCY)."""
+        bus, network = self.network.bus, self.network
+        for _ in range(RECEIVE_MAX):
+            msg = bus.recv(0.0)
+            if msg is None:
+                return
+            if not (msg.is_error_frame or msg.is_remote_frame):
+                network.notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     def on_deactivate(self) -> None:
         network = self.network
@@ -484,6 +503,8 @@ class CanopenHardware(HardwareInterface):
             self._log(level, text)
 
     def _read(self) -> None:
+        if self.network is not None and self.network.notifier is None:
+            self._receive()
         n = self.sync_count
         self.cycles += 1
         complete = True
@@ -629,6 +650,8 @@ class CanopenHardware(HardwareInterface):
         n = self.sync_count
         slots = [s for x in self._ax.values() for s in (x.tpdo1, x.load)]
         while True:
+            if self.network is not None and self.network.notifier is None:
+                self._receive()
             if all(s.answering(n) is not None for s in slots):
                 return True
             if time.monotonic() > end:
