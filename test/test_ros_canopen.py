@@ -35,12 +35,16 @@ def inside(request) -> bool:
     a new one (a pytest of its own) and fail with its output if it fails; returns False."""
     if os.environ.get(PRIVATE_NET):
         return True
+    inner = request.getfixturevalue('tmp_path') / 'inner'     # (its logs stay with this test)
     run = subprocess.run(private_network([sys.executable, '-m', 'pytest', '-q', '-x', '-s',
-                                          '-p', 'no:cacheprovider', request.node.nodeid]),
+                                          '-p', 'no:cacheprovider', '--basetemp', str(inner),
+                                          request.node.nodeid]),
                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=230)
     print(run.stdout[-4000:])
+    logs = ''.join(f'\n{log}:\n{log.read_text(errors="replace")[-2000:]}'
+                   for log in sorted(inner.glob('*/controller.log'))) if run.returncode else ''
     assert run.returncode == 0, (f'{request.node.nodeid} in a private network namespace:\n'
-                                 + run.stdout[-6000:] + run.stderr[-3000:])
+                                 + run.stdout[-6000:] + run.stderr[-3000:] + logs)
     return False
 
 
