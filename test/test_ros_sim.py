@@ -16,8 +16,8 @@ from motion_ctrl.ros.client import SlideClient
 from motion_ctrl.ros.processes import params_dir
 
 
-def _client(axes=('x', 'y')):
-    return SlideClient(axes=axes, name='sim_client', services=True)
+def _client(axes=('x', 'y'), context=None):
+    return SlideClient(axes=axes, name='sim_client', services=True, context=context)
 
 
 @pytest.fixture(scope='module')
@@ -69,10 +69,13 @@ def test_a_two_axis_trajectory_lands_both_axes(sim):
     for a in ('x', 'y'):
         _ready(c, a)
     x0, y0 = (round(c.load_position(a) / COUNT) * COUNT for a in ('x', 'y'))
-    t = c.follow(['x', 'y'], [0.5, 1.0], [[x0 + 0.002, y0 - 0.001], [x0 + 0.004, y0 - 0.002]])
+    dx, dy = 1575 * COUNT, -790 * COUNT            # 4 mm and -2 mm, on whole counts
+    t = c.follow(['x', 'y'], [0.5, 1.0], [[x0 + dx / 2, y0 + dy / 2], [x0 + dx, y0 + dy]])
     assert t is not None, {a: repr(Status(c.status[a])) for a in ('x', 'y')}
-    assert abs(_error_counts(c, 'x', x0 + 0.004)) <= 1.0
-    assert abs(_error_counts(c, 'y', y0 - 0.002)) <= 1.0
+    # Settled: the load encoder reads within fine_position_tolerance (0.59 counts) of the
+    # target; it floors the true position, which is then within (-0.59, +1.59) counts of it.
+    for a, target in (('x', x0 + dx), ('y', y0 + dy)):
+        assert -0.59 < _error_counts(c, a, target) < 1.59, a
 
 
 def test_a_jog_then_stop_estop_and_abort(sim):
@@ -176,12 +179,13 @@ def test_the_amplifiers_run_while_their_axes_are_commanded(sim):
 
 
 @pytest.mark.timeout(120)
-def test_the_headline_in_sim_time_the_controller_the_clock(rclpy_session, tmp_path, monkeypatch):
+def test_the_headline_in_sim_time_the_controller_the_clock(own_domain, tmp_path, monkeypatch):
     """use_sim_time: the controller ticks back to back and publishes /clock (its speed is
-    measured by `benchmark`); the same moves land."""
+    measured by `benchmark`); the same moves land. (A domain of its own: the module's slide
+    runs meanwhile.)"""
     from rosgraph_msgs.msg import Clock
     monkeypatch.setenv('MOTION_CTRL_SERVO_DOMAIN', 'off')
-    with running_slide(tmp_path, lambda: _client(('x',)), {'use_sim_time': 'true'},
+    with running_slide(tmp_path, lambda: _client(('x',), own_domain), {'use_sim_time': 'true'},
                        hardware='sim', exit_zero=True) as s:
         c = s.client
         clock = []

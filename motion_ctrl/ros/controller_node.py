@@ -61,7 +61,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 import msg_defs as md
 from motion_ctrl.ros import ros_env, servo_bus, ros_params
-from motion_ctrl.ros.hardware_topics import TopicsHardware, seconds_of, stamp_of
+from motion_ctrl.ros.hardware_topics import TopicsHardware, seconds_of, stamp_ns, stamp_of
 from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
@@ -182,6 +182,8 @@ class ControllerNode(ros_params.RegisterNode):
         # (topics) or this node's own clock (sim: spin_step).
         self.timer = None
         self.sync = None
+        self.period_ns = round(self.period * 1e9)
+        self.grid_ns: int | None = None           # the servo grid's last tick (hardware sim)
         self.sim_clock = self.sim_time and self.hardware_kind == 'sim'
         # hardware canopen: the bus is the clock. The drives take each SYNC as one period
         # (1006h), so the loop's time is the SYNC count: a tick that comes late stretches the
@@ -487,7 +489,9 @@ class ControllerNode(ros_params.RegisterNode):
         """One servo cycle: at the timer (real time), at an encoder sample (sim time, topics)
         or at this node's own sim clock (sim time, sim)."""
         t_start = time.perf_counter()
-        if stamp_msg is None:
+        if stamp_msg is None and self.hardware_kind == 'sim':
+            stamp = self._on_servo_grid()
+        elif stamp_msg is None:
             stamp = self.get_clock().now().to_msg()
             if self.sync is not None:
                 period = self.sync.tick(t_start)
@@ -545,13 +549,24 @@ class ControllerNode(ros_params.RegisterNode):
             self.status_turn = (self.status_turn + 1) % len(names)
             self.pub_status[a].send(UInt32(data=self.axes[a].word))
 
+    def _on_servo_grid(self):
+        """The stamp of a real-time tick with the slides in the loop (hardware sim): the clock's
+        time on the servo grid, whole periods after the first tick (PMAC's servo interrupt), so
+        that each period of the loop is one period of the simulated slides however the timer
+        jitters (sim.hardware); a tick after skipped ones is as many periods later."""
+        ns = self.get_clock().now().nanoseconds
+        if self.grid_ns is None:
+            self.grid_ns = ns
+        else:
+            self.grid_ns += max(1, round((ns - self.grid_ns) / self.period_ns)) * self.period_ns
+        return stamp_ns(self.grid_ns)
+
     # -- the sim clock (hardware sim, use_sim_time) ---------------------------------------------
     def _start_sim_clock(self) -> None:
         """This node is the clock: it publishes /clock and sets its own clock to the servo
         ticks' time (it does not read /clock, which it would only hear from itself)."""
         self.pub_clock = self.create_publisher(ClockMsg, md.CLOCK, 10)
         self.sim_ns = 0
-        self.period_ns = round(self.period * 1e9)
         self.next_diagnostics_ns = 1_000_000_000
         self._time_source.detach_node()
         self._time_source.clock_callback(ClockMsg())

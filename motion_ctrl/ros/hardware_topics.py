@@ -32,7 +32,11 @@ SHUTDOWN_ACK_WAIT = 0.2
 
 def stamp_of(seconds: float) -> Time:
     """A ROS stamp from seconds (whole nanoseconds, as every stamp here is)."""
-    ns = round(seconds * 1e9)
+    return stamp_ns(round(seconds * 1e9))
+
+
+def stamp_ns(ns: int) -> Time:
+    """A ROS stamp from integer nanoseconds, exactly."""
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 

@@ -8,12 +8,14 @@ Each tick (`ServoLoop.cycle`):
   command gets nothing, and its amplifier's command watchdog runs as the plant node's
   (`SlidePlant.advance`: after `command_timeout` 0 V and the dynamic brake). The amplifier does
   not follow the loop's enable: an open loop commands 0 V, as it does to the plant node;
-* `read` takes the encoders of every slide, stamped with the simulation's time. In real time, a
-  tick that comes more than a quarter period late first integrates the lateness on the held
-  command (the machine does not stop while the loop is held up; counted by the watchdog as the
-  plant node counts a late cycle, at most two periods); a tick that comes early reads the slide
-  where the last write left it. In sim time every tick is exactly one period and the run is
-  deterministic.
+* `read` takes the encoders of every slide, stamped with the simulation's time. The loop's
+  times must lie on its servo grid (the node ticks at whole periods of its clock, as a PMAC's
+  servo interrupt does; in sim time they do), so that every period of the loop is one of the
+  slides: a tick that comes after skipped ones first integrates the periods it missed on the
+  held command (the machine does not stop while the loop is held up; the watchdog counts a
+  late cycle as the plant node does, at most two periods). A loop whose ticks and slides
+  advanced by different times would compare the command of one time with the slide of another
+  (tens of counts of following error at speed, a hundred microseconds of jitter apart).
 
 `deactivate` commands 0 V and disables every amplifier: from the next integration on its output
 is 0 V with the dynamic brake closed.
@@ -23,16 +25,12 @@ path over a network (the in-process harness uses it).
 """
 from __future__ import annotations
 
-from typing import Final
-
 import math
 from collections import deque
 
 from motion_ctrl.core.hardware import AxisIO, HardwareError, HardwareInterface
 from motion_ctrl.sim.plant import SlidePlant
 
-# A real-time tick later than this fraction of a period integrates its lateness first.
-LATE: Final = 0.25
 
 
 class SimHardware(HardwareInterface):
@@ -80,7 +78,7 @@ class SimHardware(HardwareInterface):
         t = self.time
         if t != t or abs(now - t) < 1e-9:   # the first read; or on time (ROS stamps: whole ns)
             t = self.time = now
-        elif now - t > LATE * self.period:
+        elif now > t:                       # ticks were skipped: the slides ran on meanwhile
             late = now - t
             for _, plant in self._slides:
                 plant.advance(late, self.period)

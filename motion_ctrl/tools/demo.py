@@ -21,6 +21,7 @@ import os
 import pathlib
 import sys
 
+import msg_defs as md
 from motion_ctrl.ros import ros_env
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
 
@@ -54,7 +55,7 @@ def main(argv=None) -> int:
     import rclpy
     from motion_ctrl.ros.client import SlideClient
     from motion_ctrl.ros.processes import CAN_BUS, start_canopen, start_sim, start_slide
-    from motion_ctrl.tools.record import Recorder
+    from motion_ctrl.tools.record import SERVO_TOPICS, Recorder
     from motion_ctrl.tools.report import ReportError, format_summary, make_report
 
     overrides = {'x.feedback': args.feedback} if args.feedback else {}
@@ -94,10 +95,10 @@ def main(argv=None) -> int:
             print(f'demo: the nodes did not come up ({client.not_ready()}); see the logs',
                   file=sys.stderr)
             return 1
-        from motion_ctrl.tools.record import SERVO_TOPICS
-        # (sim, canopen: the servo traffic is not on ROS, there is no command / encoders topic)
+        # (sim, canopen: no `command` / `encoders` on DDS: the slide is in the controller's
+        # loop, or the servo traffic is on the CAN bus)
         topics = None if args.hardware == 'topics' else [
-            t for t in SERVO_TOPICS if t not in ('command', 'encoders')]
+            t for t in SERVO_TOPICS if t not in (md.COMMAND, md.ENCODERS)]
         recorder = Recorder(bag, topics, discover_status=True).start()
         if not recorder.wait_ready(10.0):
             print('demo: the recorder did not see every topic; recording anyway')
