@@ -191,7 +191,6 @@ class ControllerNode(ros_params.RegisterNode):
         # SYNCs really go out is in /diagnostics (can_sync_interval_*). The messages it
         # publishes keep the wall clock's stamps.
         self.bus_ns: int | None = None
-        self.period_ns = round(self.period * 1e9)
         if not self.sim_time:
             # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
             self.timer = self.create_timer(self.period, lambda: self._tick())
