@@ -245,9 +245,11 @@ def test_identify_autotune_and_calibrate_run_unchanged_through_canopen(request, 
         assert run.returncode == 0, f'{name} failed:\n{run.stdout[-3000:]}{run.stderr[-3000:]}'
         return run.stdout
     try:
-        tool('identify', '--points', '16', '--dwell', '0.25', '--fine-points', '6',
-             '--fine-dwell', '0.4', '--ratio-points', '0', '--friction-samples', '100',
-             '--slide-mass', '5.0', '-o', str(tmp_path / 'identify'))
+        # (twice the default amplitudes: the drive's torque comes in steps of 1 ‰, 0.01 V)
+        tool('identify', '--amplitude', '0.1', '--points', '24', '--dwell', '0.3',
+             '--fine-amplitude', '0.06', '--fine-points', '6', '--fine-dwell', '0.4',
+             '--ratio-points', '0', '--friction-samples', '100', '--slide-mass', '5.0',
+             '-o', str(tmp_path / 'identify'))
         r = yaml.safe_load((tmp_path / 'identify' / 'identify.yaml').read_text())
         assert r['resonance_hz'] == pytest.approx(SlidePlant().resonance_hz, rel=0.10)
         tool('autotune', '--from', str(tmp_path / 'identify'), '--apply', '--restore',
