@@ -616,6 +616,11 @@ def _serve(axes, interface, channel, bitrate, substep_rate, floats, ints, comman
     except (OSError, AttributeError):
         pass
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # (the parent stops it)
+    try:        # every thread of this process (they inherit it): no lock of this interpreter
+        # is held by a thread at normal scheduling while the drives' thread waits for it
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RECEIVE_PRIORITY))
+    except (OSError, AttributeError):
+        pass
     drives = VirtualDrives(axes, interface, channel, bitrate, substep_rate,
                            log=lambda level, text: logs.put((level, text)))
     try:
