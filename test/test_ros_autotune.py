@@ -16,11 +16,11 @@ import pytest
 import yaml
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
                           '--lockstep', '--apply', '--preset', 'stiff', '-o', str(tmp_path)],
-                         env=node_env, capture_output=True, text=True, timeout=230)
+                         env=node_env, capture_output=True, text=True, timeout=290)
     print(run.stdout[-4000:])
     assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
         + run.stderr[-3000:]
@@ -35,6 +35,12 @@ def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
         assert a['output_pp_v'] < 0.2, a
     assert sorted(m['settle_ms'] for m in v['after']['moves'])[1] <= 150.0
     assert 'x.friction_ff_at_rest' in regs
+    # issue 30, must-show 2: the default slide slips a few hundredths of a count; its rest
+    # settings stay as shipped (the exact count), and every move is at rest for 2 s
+    assert v['rest']['slip_counts'] < 0.5 and v['rest']['window_counts'] == 0.0, v['rest']
+    assert regs['x.window_centre'] == 'reading' and regs['x.deadband_tolerance'] == 0.0
+    assert regs['x.fine_position_tolerance'] == 1.5e-6
+    assert all(m['at_rest'] for m in v['after']['moves']), v['after']
     for name in ('open_loop.png', 'steps.png'):
         assert (tmp_path / name).stat().st_size > 10_000
 
@@ -60,10 +66,11 @@ def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     `resonance_hz` makes the test an XFAIL with the number: identify's known failure (README,
     test_ros_identify), its first stepped sine gone wrong and the fine one searching around a
     wrong resonance (one run of six on the heavy slide, 2026-11-24: 178 Hz, damping 0.93).
-    Not autotune's to judge."""
+    Not autotune's to judge. Each move is watched 0.5 s at rest (`--rest`; the resonance, not
+    the rest, is these tests' question: the suite's time)."""
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
-                          '--lockstep', '--apply', '-o', str(tmp_path)] + plant,
-                         env=node_env, capture_output=True, text=True, timeout=230)
+                          '--lockstep', '--apply', '--rest', '0.5', '-o', str(tmp_path)] + plant,
+                         env=node_env, capture_output=True, text=True, timeout=290)
     print(run.stdout[-5000:])
     path = tmp_path / 'identify' / 'identify.yaml'
     assert path.is_file(), f'identify failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
@@ -79,7 +86,7 @@ def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     return run, regs
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
     run, regs = _autotune(node_env, tmp_path, HEAVY_SLIDE, resonance_hz=45.8)
     assert regs['x.notch_n1'] != 0.0 and regs['x.notch_d2'] != 0.0, run.stdout[-3000:]
@@ -101,7 +108,7 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
 @pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
                     reason='opt-in, 48 s: MOTION_CTRL_LONG=1 (test_autotune checks the rule on '
                            'this plant without ROS)')
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env, tmp_path):
     """The screw ten times softer (resonance 76.8 Hz) under the default 5 kg slide: the shipped
     gains lose margin (2026-11-24: 3.7 dB / 27.0° measured), autotune finds the resonance and,
@@ -121,3 +128,67 @@ def test_autotune_no_notch_where_the_resonance_does_not_limit_the_loop(node_env,
         assert a['settle_ms'] < b['settle_ms'], (b, a)
         assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
         assert a['overshoot_counts'] <= 2.0, a
+
+
+# Issue 30, must-show 1 over ROS: sticky slides (stiction above the sliding friction on a screw
+# several times softer than the default: the slide slips 1.4-1.8 counts when it breaks away),
+# the whole tool in lockstep. The first in the default suite; the other two opt-in (about two
+# minutes each; test_rest holds the rule on all three without ROS).
+STICKY = {
+    'screw_5x_softer_stiction_2x': ['x.screw_stiffness:=2.0e6', 'x.slide_stiction:=21.0',
+                                    'x.slide_coulomb:=17.0'],
+    'screw_2_5x_softer_stiction_4x': ['x.screw_stiffness:=4.0e6', 'x.slide_stiction:=42.0',
+                                      'x.slide_coulomb:=34.0'],
+    'slide_8kg_screw_5x_softer': ['x.screw_stiffness:=2.0e6', 'x.slide_mass:=8.0',
+                                  'x.slide_stiction:=34.0', 'x.slide_coulomb:=30.0'],
+}
+LONG = pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
+                          reason='opt-in, about 2 min: MOTION_CTRL_LONG=1 (test_rest holds the '
+                                 'rule on this slide without ROS)')
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize('name', [
+    'screw_5x_softer_stiction_2x',
+    pytest.param('screw_2_5x_softer_stiction_4x', marks=LONG),
+    pytest.param('slide_8kg_screw_5x_softer', marks=LONG)])
+def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
+    """`autotune --spawn --lockstep --apply` on a sticky slide. identify's creeps measure the
+    breakaway, and the rest rule predicts the slip and proposes ±1 count; today's autotune
+    (the gains with the rest as shipped, tried for the record on every test move) leaves some
+    of them hunting; where the shipped gains hunt (a stick-slip limit cycle, reported with
+    its period and amplitude), the controller reports it in its log and /diagnostics; after the
+    proposal every verification move reaches MOTION_DONE, the median within 300 ms of the end
+    of the profile, the simulated slide within 1 count of the target, and stays: 2 s with
+    neither the reading nor the output turning back."""
+    plant = [a for p in STICKY[name] for a in ('--plant', p)]
+    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
+                          '--lockstep', '--apply', '-o', str(tmp_path)] + plant,
+                         env=node_env, capture_output=True, text=True, timeout=290)
+    print(run.stdout[-6000:])
+    assert run.returncode == 0, f'autotune failed, logs in {tmp_path}:\n' + run.stdout[-3000:] \
+        + run.stderr[-3000:]
+    ident = yaml.safe_load((tmp_path / 'identify' / 'identify.yaml').read_text())
+    assert ident['stick_slips_pos'] > 5 and ident['stick_slips_neg'] > 5, ident
+    assert ident['breakaway_pos'] > ident['coulomb_pos'], ident
+    v = yaml.safe_load((tmp_path / 'verification.yaml').read_text())
+    r = v['rest']
+    assert 1.0 < r['slip_counts'] < 2.0 and r['window_counts'] == 1.0, r
+    assert r['promise'].startswith('±1 count of a target on a whole count'), r
+    # the gains alone, the rest as shipped (today's autotune): a test move or more not at rest
+    assert not r['control']['at_rest'] and r['control']['hunted'] >= 1, r
+    before = v['before']['moves'][0]
+    if not before['at_rest']:
+        # the shipped gains hunt (on this slide, always in the harness): the verification
+        # says with what period and amplitude, and the controller has said so in its log
+        assert before['limit_cycle_period_s'] > 0.5, before
+        assert 'x: hunting: ' in (tmp_path / 'controller.log').read_text()
+        assert "the controller's /diagnostics: hunting: " in run.stdout
+    after = v['after']['moves']
+    assert len(after) == 3
+    for m in after:
+        assert m['at_rest'] and math.isfinite(m['settle_ms']), m
+        assert abs(m['true_final_error_counts']) <= 1.0, m
+        assert m['moved_counts'] == 0 and m['output_turns'] == 0, m
+    assert sorted(m['settle_ms'] for m in after)[1] <= 300.0, after
+    assert (tmp_path / 'steps.png').stat().st_size > 10_000

@@ -21,7 +21,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
@@ -962,6 +962,10 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
     axis_values = {kv.key: kv.value for kv in axis_status[0].values}
     assert axis_values['mode'] == 'position_pid' and axis_values['enabled'] == 'True'
     assert int(axis_values['status'], 16) & Status.ENABLED, axis_values
+    # the hunting watch (core.hunting): the default slide at rest does not hunt
+    assert axis_values['hunting'] == 'False' and axis_status[0].level == DiagnosticStatus.OK, \
+        axis_values
+    assert int(axis_values['output_reversals_at_rest']) < 4, axis_values
 
 
 # -- 6. joint_trajectory (issue 16) ---------------------------------------------------------------

@@ -78,6 +78,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from motion_ctrl.analysis import identify as idf
+from motion_ctrl.analysis import rest
 from motion_ctrl.core import notch as nt
 from motion_ctrl.core.registers import yaml_float
 
@@ -146,6 +147,10 @@ class AxisResponse:
     viscous: float = 0.0
     motor: idf.FrequencyResponse | None = None
     load: idf.FrequencyResponse | None = None
+    #: identify's friction each way [V], (positive, negative): the breakaway of its creeps and
+    #: the Coulomb friction of its jogs (None: not measured)
+    breakaway: tuple[float, float] | None = None
+    coulomb_sides: tuple[float, float] | None = None
 
     def __post_init__(self):
         idf.positive('sample_period', self.sample_period)
@@ -165,6 +170,20 @@ class AxisResponse:
             raise ValueError(f'coulomb must be a finite number >= 0 V, got {self.coulomb!r}')
         if not math.isfinite(self.viscous):
             raise ValueError(f'viscous must be finite, got {self.viscous!r}')
+        for name in ('breakaway', 'coulomb_sides'):
+            v = getattr(self, name)
+            if v is not None and not (len(v) == 2 and all(math.isfinite(x) and x >= 0.0
+                                                          for x in v)):
+                raise ValueError(f'{name} must be two finite numbers >= 0 V (positive, '
+                                 f'negative), got {v!r}')
+
+    def slip(self) -> float | None:
+        """The slip [m] of the slide when it breaks away (analysis.rest.slip), the larger of
+        the two directions; None without identify's breakaway."""
+        if self.breakaway is None:
+            return None
+        sides = self.coulomb_sides or (self.coulomb, self.coulomb)
+        return max(rest.slip(self.model, b, c) for b, c in zip(self.breakaway, sides))
 
     @property
     def inertia(self) -> float:
@@ -644,8 +663,11 @@ def read_identify(folder) -> AxisResponse:
                                       'stepped_sine')
         load = idf.FrequencyResponse(a[:, 0], a[:, 4] + 1j * a[:, 5], a[:, 6], rate,
                                      'stepped_sine')
+    sides = {k: (float(r[f'{k}_pos']), float(r[f'{k}_neg'])) if f'{k}_pos' in r else None
+             for k in ('breakaway', 'coulomb')}
     return AxisResponse(model, period, int(r['delay_ticks']), float(r.get('coulomb', 0.0)),
-                        float(r.get('viscous', 0.0)), motor, load)
+                        float(r.get('viscous', 0.0)), motor, load, sides['breakaway'],
+                        sides['coulomb'])
 
 
 def params_yaml(registers: dict, axis: str = 'x', node: str = 'controller',
@@ -653,7 +675,8 @@ def params_yaml(registers: dict, axis: str = 'x', node: str = 'controller',
     """`ros2 param load` YAML of the registers (every value a double, core.registers.yaml_float)."""
     lines = [f'# {line}' for line in comment.splitlines()]
     lines += [f'{node}:', '  ros__parameters:']
-    lines += [f'    {axis}.{k}: {yaml_float(v)}' for k, v in registers.items()]
+    lines += [f'    {axis}.{k}: {v if isinstance(v, str) else yaml_float(v)}'
+              for k, v in registers.items()]
     return '\n'.join(lines) + '\n'
 
 
@@ -775,8 +798,10 @@ def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = 
 class MoveResult:
     """One verified move: `settle_ms` from the end of the profile (AT_TARGET) to MOTION_DONE
     (inf: none), `overshoot` past the target in the direction of the move and `final_error`
-    at rest [load counts], `output_pp` the output's peak-to-peak at rest [V] (ringing); the
-    trace (time from the end of the profile [s], error [counts]) for the plot."""
+    at rest [load counts], `output_pp` the output's peak-to-peak at rest [V]; `rest` whether it
+    came to rest and stayed (analysis.rest.judge: after MOTION_DONE neither the reading nor
+    the output turned back; without it the limit cycle's period and amplitude); the trace
+    (time from the end of the profile [s], error [counts], output [V]) for the plot."""
     label: str
     target: float
     settle_ms: float
@@ -785,13 +810,23 @@ class MoveResult:
     output_pp: float
     t: np.ndarray
     error: np.ndarray
+    rest: rest.Judgement
+    output: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: the true slide error at the end [counts], where a simulated plant gives it (--spawn)
+    true_error: float | None = None
+
+    @property
+    def settled(self) -> bool:
+        return self.rest.settled
 
 
-def move_result(label, target, start, t, position, effort, t_end, t_done, rest_from,
-                counts_per_m) -> MoveResult:
+def move_result(label, target, start, t, position, effort, t_end, t_done, counts_per_m,
+                coulomb: float) -> MoveResult:
     """Metrics of a move from the controller's samples (stamp t [s], load position [m],
-    output [V]): t_end the end of the profile, t_done MOTION_DONE (None: not raised), samples
-    from `rest_from` [s] on are 'at rest' (final error: their mean; output_pp: their spread)."""
+    output [V]): t_end the end of the profile, t_done MOTION_DONE (None: not raised); the
+    samples after MOTION_DONE are the rest (final error: their mean over the last half;
+    output_pp: their spread), judged by analysis.rest.judge with the axis's Coulomb friction
+    [V]."""
     t = np.asarray(t, dtype=float)
     pos = np.asarray(position, dtype=float)
     eff = np.asarray(effort, dtype=float)
@@ -799,68 +834,99 @@ def move_result(label, target, start, t, position, effort, t_end, t_done, rest_f
         raise ValueError('move_result needs samples of equal length')
     sign = 1.0 if target >= start else -1.0
     err = (pos - target) * counts_per_m
-    rest = t >= rest_from
-    if not np.any(rest):
+    rest_from = t_done if t_done is not None else (t_end if t_end is not None else t[0])
+    at_rest = t >= rest_from
+    if not np.any(at_rest):
         raise ValueError('no samples at rest')
+    last = at_rest & (t >= 0.5 * (rest_from + t[-1]))
     settle = math.inf if t_done is None or t_end is None else max(t_done - t_end, 0.0) * 1e3
     over = max(0.0, float(np.max(sign * err)))
     ref = t_end if t_end is not None else float(t[0])
-    return MoveResult(label, float(target), settle, over, float(np.mean(err[rest])),
-                      float(np.ptp(eff[rest])), t - ref, err)
+    judged = rest.judge(t, pos, eff, t_end, t_done, counts_per_m, coulomb)
+    # (rounded: the readings of a count off give 1 ± 1e-10 counts)
+    return MoveResult(label, float(target), settle, over, round(float(np.mean(err[last])), 6),
+                      float(np.ptp(eff[at_rest])), t - ref, err, judged, eff)
 
 
 def format_verification(runs: dict, evaluations: dict) -> str:
-    """Before/after table: per move settle time, overshoot, final error, output p-p; then the
-    median settle time and the margins and bandwidth of each set."""
+    """Before/after table: per move settle time, overshoot, final error, output p-p and rest
+    (at rest, or why not: the limit cycle's period and amplitude); then the median settle
+    time and the margins and bandwidth of each set."""
+    truth = any(m.true_error is not None for v in runs.values() for m in v)
     lines = ['| gains | move | settle [ms] | overshoot [counts] | final error [counts] | '
-             'output p-p at rest [V] |', '|---|---|---:|---:|---:|---:|']
+             + ('slide (plant) [counts] | ' if truth else '')
+             + 'output p-p at rest [V] | rest |',
+             '|---|---|---:|---:|---:|' + ('---:|' if truth else '') + '---:|---|']
     for name, moves in runs.items():
         for m in moves:
             s = f'{m.settle_ms:.0f}' if math.isfinite(m.settle_ms) else 'no MOTION_DONE'
+            true = ('' if not truth else '- | ' if m.true_error is None
+                    else f'{m.true_error:+.2f} | ')
             lines.append(f'| {name} | {m.label} | {s} | {m.overshoot:.2f} | '
-                         f'{m.final_error:+.2f} | {m.output_pp:.3f} |')
+                         f'{m.final_error:+.2f} | {true}{m.output_pp:.3f} | '
+                         f'{m.rest.describe()} |')
     lines.append('')
-    lines.append('| gains | median settle [ms] | gain margin [dB] | phase margin [°] | '
-                 'crossover [Hz] | bandwidth [Hz] |')
-    lines.append('|---|---:|---:|---:|---:|---:|')
+    lines.append('| gains | median settle [ms] | moves at rest | gain margin [dB] | '
+                 'phase margin [°] | crossover [Hz] | bandwidth [Hz] |')
+    lines.append('|---|---:|---:|---:|---:|---:|---:|')
     for name, moves in runs.items():
         ev = evaluations[name]
         med = float(np.median([m.settle_ms for m in moves]))
         cross = f'{ev.crossover_hz:.1f}' if ev.crossover_hz is not None else '-'
-        lines.append(f'| {name} | {med:.0f} | {ev.gain_margin_db:.1f} | '
-                     f'{ev.phase_margin_deg:.1f} | {cross} | {ev.bandwidth_hz:.1f} |')
+        rested = sum(m.settled for m in moves)
+        lines.append(f'| {name} | {med:.0f} | {rested} of {len(moves)} | '
+                     f'{ev.gain_margin_db:.1f} | {ev.phase_margin_deg:.1f} | {cross} | '
+                     f'{ev.bandwidth_hz:.1f} |')
     return '\n'.join(lines)
 
 
 def plot_steps(path, runs: dict, *, title: str = '') -> None:
-    """Slide error [counts] against time from the end of each move's profile, one panel per
-    move, every set of gains (before / after) in it; MOTION_DONE marked."""
+    """Per move (a column each), every set of gains (before / after) in it: the slide error
+    [counts] in the first 0.8 s after the end of the profile (top), and over the whole record
+    with the rest watched after MOTION_DONE (middle), the output [V] over it (bottom);
+    MOTION_DONE marked, a limit cycle named in the legend."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     names = list(runs)
     labels = list(dict.fromkeys(m.label for v in runs.values() for m in v))  # one panel each
     n = len(labels)
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(3, n, figsize=(4.2 * n, 9.5), sharey='row', squeeze=False)
     for j, label in enumerate(labels):
-        ax = axes[0][j]
+        span = max(float(m.t[-1]) for v in runs.values() for m in v if m.label == label)
+        top, mid, bot = axes[0][j], axes[1][j], axes[2][j]
         for i, name in enumerate(names):
             m = next((x for x in runs[name] if x.label == label), None)
             if m is None:
                 continue
+            c = f'C{i}'
             keep = (m.t >= -0.1) & (m.t <= 0.8)
             settle = f'{m.settle_ms:.0f} ms' if math.isfinite(m.settle_ms) else 'none'
-            ax.plot(m.t[keep] * 1e3, m.error[keep], '-', color=f'C{i}', lw=1.1,
-                    label=f'{name}: settle {settle}, final {m.final_error:+.2f}')
+            top.plot(m.t[keep] * 1e3, m.error[keep], '-', color=c, lw=1.1,
+                     label=f'{name}: settle {settle}, final {m.final_error:+.2f}')
+            mid.plot(m.t, m.error, '-', color=c, lw=1.0, label=f'{name}: {m.rest.short()}')
+            if m.output.size:
+                bot.plot(m.t, m.output, '-', color=c, lw=0.8)
             if math.isfinite(m.settle_ms):
-                ax.axvline(m.settle_ms, color=f'C{i}', ls=':', lw=1)
-        ax.axhspan(-1, 1, color='g', alpha=0.1)
-        ax.set_title(label, fontsize=9)
-        ax.set_xlabel('time from the end of the profile [ms]')
-        ax.set_ylim(-25, 25)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc='lower right')
+                top.axvline(m.settle_ms, color=c, ls=':', lw=1)
+                for a in (mid, bot):
+                    a.axvline(m.settle_ms / 1e3, color=c, ls=':', lw=1)
+        for a in (top, mid):
+            a.axhspan(-1, 1, color='g', alpha=0.1)
+            a.grid(True, alpha=0.3)
+        bot.grid(True, alpha=0.3)
+        top.set_title(label, fontsize=9)
+        top.set_xlabel('time from the end of the profile [ms]')
+        top.set_ylim(-25, 25)
+        top.legend(fontsize=7, loc='lower right')
+        mid.set_ylim(-5, 5)
+        mid.set_xlim(-0.1, span)
+        mid.legend(fontsize=7, loc='upper right')
+        bot.set_xlim(-0.1, span)
+        bot.set_xlabel('time from the end of the profile [s]')
     axes[0][0].set_ylabel('slide error (joint_states) [linear counts]')
+    axes[1][0].set_ylabel('slide error, whole record [counts]')
+    axes[2][0].set_ylabel('output [V]')
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()

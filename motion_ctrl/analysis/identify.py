@@ -68,7 +68,8 @@ __all__ = [
     'AntiResonance', 'load_motor_ratio', 'fit_antiresonance', 'fit_two_mass_on_ratio',
     'Margins', 'margins', 'pid_response', 'pid_open_loop',
     'GAIN_MARGIN_DB', 'PHASE_MARGIN_DEG',
-    'merge', 'Friction', 'friction', 'physical_units', 'plot_bode', 'doubts',
+    'merge', 'Friction', 'friction', 'Breakaway', 'breakaway', 'STICK_S', 'physical_units',
+    'plot_bode', 'doubts',
     'MIN_COHERENT_FRACTION', 'MIN_INERTIA_RATIO',
 ]
 
@@ -829,6 +830,43 @@ def friction(velocities, volts) -> Friction:
     res = u - a @ coef
     viscous = float(coef[2]) if speeds.size > 1 else 0.0
     return Friction(float(coef[0]), viscous, float(coef[1]), float(np.sqrt(np.mean(res ** 2))))
+
+
+#: a creep's stick: the slide still for this long [s] before it breaks away again
+STICK_S = 0.02
+
+
+@dataclass(frozen=True)
+class Breakaway:
+    """The breakaway friction of one direction from a creep (a jog slow enough that the slide
+    sticks and slips): `breakaway` [V], the median over the slips of the output's peak in the
+    10 samples before the slide broke away after a stick of STICK_S or more (None: the slide
+    crept without sticking, its breakaway not above its sliding friction); `slips` how many
+    stuck and broke away; `creep` [V] the mean output over the creep."""
+    breakaway: float | None
+    slips: int
+    creep: float
+
+
+def breakaway(t, position, output, counts_per_m: float) -> Breakaway:
+    """Breakaway friction from a creep's samples (stamps [s], slide position [m], output [V]);
+    the direction is the creep's (the sign of the slide's travel). The output is taken as its
+    5-sample median: one servo tick's kick of kd on a motor count is not a push."""
+    t = np.asarray(t, dtype=float)
+    reading = np.round(np.asarray(position, dtype=float) * positive('counts_per_m',
+                                                                      counts_per_m))
+    u = np.asarray(output, dtype=float)
+    if t.size < 10 or t.size != reading.size or t.size != u.size:
+        raise ValueError('breakaway needs at least 10 samples of equal length')
+    sign = 1.0 if reading[-1] >= reading[0] else -1.0
+    if u.size >= 5:
+        from numpy.lib.stride_tricks import sliding_window_view
+        u = np.concatenate([u[:2], np.median(sliding_window_view(u, 5), axis=1), u[-2:]])
+    moved = np.flatnonzero(sign * np.diff(reading) > 0) + 1
+    peaks = [sign * float(np.max(sign * u[max(a, b - 10):b]))
+             for a, b in zip(moved[:-1], moved[1:]) if t[b] - t[a] >= STICK_S]
+    creep = float(np.mean(u[u.size // 4:]))
+    return Breakaway(float(np.median(peaks)) if peaks else None, len(peaks), creep)
 
 
 #: the share of the band measured coherently below which a fit is not reported as a model

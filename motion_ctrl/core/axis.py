@@ -10,7 +10,9 @@ Each tick (`update`):
     or sampled (motor loop + Galil's correction moves on the load encoder after each move);
  5. following-error checks (PMAC Ixx11 / Ixx12); fatal opens the loop;
  6. the servo law (PID / I-PD, notch, deadband, output limit);
- 7. settling events (RMP) and the status word.
+ 7. settling events (RMP) and the status word;
+ 8. a test signal on the output (PMAC gather), when one runs;
+ 9. the hunting watch: output reversals at rest without settling (core.hunting).
 
 Commands (`move_to`, `jog`, `stop`, ...) and their rules are in motion_ctrl.core.commands; soft
 limit braking is planned by motion_ctrl.core.soft_limits.
@@ -27,6 +29,7 @@ from motion_ctrl.core.backlash import BacklashCompensation
 from motion_ctrl.core.dual_loop import SampledCorrection, feedback_encoders
 from motion_ctrl.core.commands import AxisCommands
 from motion_ctrl.core.gather import Gather
+from motion_ctrl.core.hunting import Hunting
 from motion_ctrl.core.profile import Profile
 from motion_ctrl.core.config import (BacklashConfig, CorrectionConfig, LawConfig, ProfileConfig,
                                      SettlingConfig)
@@ -47,6 +50,7 @@ _FEEDBACK_FAULT: Final = int(Status.FEEDBACK_FAULT)
 _LIMIT: Final = int(Status.LIMIT)
 _CORRECTING: Final = int(Status.CORRECTING)
 _AT_VELOCITY: Final = int(Status.MOTION_AT_VELOCITY)
+_IN_FINE: Final = int(Status.IN_FINE_POSITION)
 
 _S_IDLE: Final = SampledCorrection.IDLE
 _S_CORRECTING: Final = SampledCorrection.CORRECTING
@@ -70,6 +74,7 @@ class Axis(AxisCommands):
         self.backlash = BacklashCompensation()
         self.sampled = SampledCorrection()
         self.gather: Gather | None = None       # a test signal running (Axis.excite)
+        self.hunting = Hunting()                # output reversals at rest without settling
         self.r: dict = {}            # the registers applied (set by configure below)
         self.enabled = False
         self.homed = False           # first feedback seen
@@ -126,7 +131,11 @@ class Axis(AxisCommands):
         self._load_cpm: float = r['load_counts_per_m']
         # RMC: anti-hunting below half a raw count. Inclusive (by a hair): a target halfway
         # between two counts can be held from either, so the integrator must stop there too.
-        self._half = 0.5 * (1 + 1e-6) / (self._motor_cpm if self._motor_side else self._load_cpm)
+        cpm = self._loop_cpm = self._motor_cpm if self._motor_side else self._load_cpm
+        self._half = 0.5 * (1 + 1e-6) / cpm
+        # window_centre count_middle: the at-rest windows judge the position as the middle of
+        # the count the encoder reads (a quadrature counter reads its lower edge).
+        self._shift: float = 0.5 / cpm if r['window_centre'] == 'count_middle' else 0.0
         self._fe_fatal: float = r['following_error_fatal']
         self._fe_warn: float = r['following_error_warning']
         self._soft_lo: float = r['soft_limit_min']
@@ -136,6 +145,7 @@ class Axis(AxisCommands):
         self._max_jerk: float = r['max_jerk']
         self._stop_dec: float = r['stop_deceleration']
         self._estop_dec: float = r['estop_deceleration']
+        self.hunting.configure(r['hunting_reversals'])
         if old and old['feedback'] != feedback and self.homed:
             self._rehome_command()
 
@@ -144,6 +154,11 @@ class Axis(AxisCommands):
     def motor_side_loop(self) -> bool:
         """Position loop closed on the motor encoder: compensation applies there only."""
         return self._motor_side
+
+    @property
+    def loop_counts_per_m(self) -> float:
+        """Counts per metre of the encoder the position loop closes on."""
+        return self._loop_cpm
 
     @property
     def word(self) -> int:
@@ -276,6 +291,8 @@ class Axis(AxisCommands):
         g = self.gather
         if g is not None and g.running:
             return self._excite(g, out)
+        if self.hunting.limit > 0:
+            self._watch_hunting(sample_dt)
         return out
 
     # The stages of the tick, in order.
@@ -345,7 +362,7 @@ class Axis(AxisCommands):
             vel = self.actual_vel   # (positional: keywords cost 0.13 µs a call here)
             self.output = self.servo.update(
                 sample_dt, self._loop_cmd, velocity, p.acceleration, self._loop_pos, vel, vel,
-                self._loop_acc, velocity == 0.0 and not p.moving, self._half)
+                self._loop_acc, velocity == 0.0 and not p.moving, self._half, self._shift)
         return self.output
 
     def _update_status(self, sample_dt: float, motor_counts) -> None:
@@ -354,7 +371,8 @@ class Axis(AxisCommands):
         settled."""
         p = self.profile
         bits = self.settling.step(sample_dt, p.position, p.velocity, p.done,
-                                  self.actual_pos + self.sampled_offset, self.actual_vel)
+                                  self.actual_pos + self.sampled_offset + self._shift,
+                                  self.actual_vel)
         if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
         self._compose(bits)
@@ -369,6 +387,13 @@ class Axis(AxisCommands):
         if not g.running and g.base_velocity and self.profile.target_velocity == g.base_velocity:
             self.jog(0.0)
         return out
+
+    def _watch_hunting(self, sample_dt: float) -> None:
+        """9. Output reversals at rest without settling (core.hunting), on new samples."""
+        if sample_dt > 0.0:
+            p = self.profile
+            self.hunting.step(sample_dt, not self._motion & _IN_FINE,
+                              p.moving or p.velocity != 0.0, self.output, self.following_error)
 
     def _update_open(self) -> float:
         """Loop open: the command follows the actual position so closing it is bumpless."""

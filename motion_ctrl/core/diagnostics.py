@@ -99,10 +99,13 @@ def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
         st = DiagnosticStatus(name=f'{node_name}: axis {name}', hardware_id=name)
         faults = axis.status & (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT)
         drive = axis.drive_fault_reason
-        st.level = DiagnosticStatus.ERROR if faults or drive else DiagnosticStatus.OK
+        hunting = axis.hunting
+        st.level = DiagnosticStatus.ERROR if faults or drive else \
+            DiagnosticStatus.WARN if hunting.hunting else DiagnosticStatus.OK
         st.message = (f'faulted: {Status(faults)!r}' if faults else
                       f'amplifier fault: {drive}' if drive else
-                      'enabled' if axis.enabled else 'disabled')
+                      f'hunting: {hunting.describe(axis.loop_counts_per_m)}' if hunting.hunting
+                      else 'enabled' if axis.enabled else 'disabled')
         st.values = [KeyValue(key='mode', value=axis.r['mode']),
                      KeyValue(key='feedback', value=axis.r['feedback']),
                      # the gains the loop runs with (applied, not just accepted)
@@ -112,6 +115,12 @@ def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
                      KeyValue(key='enabled', value=str(axis.enabled)),
                      KeyValue(key='status', value=f'0x{int(axis.status):05x}'),
                      KeyValue(key='following_error_m', value=f'{axis.following_error:.3e}'),
-                     KeyValue(key='output_v', value=f'{axis.output:.3f}')]
+                     KeyValue(key='output_v', value=f'{axis.output:.3f}'),
+                     # core.hunting: output reversals at rest without settling
+                     KeyValue(key='hunting', value=str(hunting.hunting)),
+                     KeyValue(key='output_reversals_at_rest', value=str(hunting.reversals)),
+                     KeyValue(key='hunting_period_s', value=f'{hunting.period:.3f}'),
+                     KeyValue(key='hunting_amplitude_counts',
+                              value=f'{hunting.amplitude * axis.loop_counts_per_m:.2f}')]
         arr.status.append(st)
     return arr

@@ -224,6 +224,18 @@ AXIS_REGISTERS = (
        max=10.0),
     _r('deadband_tolerance', 'double', 0.0, 'm', 'Position error window for anti-hunting and '
        'deadband ratioing.', 'RMC Deadband Tolerance', min=0.0),
+    _r('window_centre', 'string', 'reading', '', 'Where the at-rest windows (fine position, '
+       'anti-hunting, deadband ratioing, the breakaway aid) are centred: reading (the position '
+       'encoder as read; a quadrature counter reads the lower edge of its count, so a window of '
+       'whole counts around a target on a count lies half a count high on the slide) or '
+       'count_middle (half a count above the reading: the window lies symmetric about the '
+       'target; autotune sets it where stick-slip needs a window wider than the exact count).',
+       'motion_ctrl (cf. RMC Deadband Tolerance, half a raw count)',
+       choices=('reading', 'count_middle')),
+    _r('hunting_reversals', 'integer', 4, 'count', 'Hunting watch: the axis reports hunting '
+       '(/diagnostics, the log) once its output has reversed this many times at rest without '
+       'settling (no MOTION_DONE, or out of the fine window since); 0 = not watched.',
+       'cf. RMC Deadband Tolerance (anti-hunting)', min=0, max=1000),
     _r('notch_n1', 'double', 0.0, '', 'Notch/low-pass numerator z^-1 coefficient.',
        'PMAC Ixx36', min=-2.0, max=2.0),
     _r('notch_n2', 'double', 0.0, '', 'Notch/low-pass numerator z^-2 coefficient.',

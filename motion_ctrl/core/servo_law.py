@@ -171,15 +171,19 @@ class ServoLaw:
 
     def update(self, dt: float, cmd_pos: float, cmd_vel: float, cmd_acc: float,
                act_pos: float, act_vel: float, vel_loop_vel: float, vel_loop_acc: float,
-               target_stopped: bool, half_count: float) -> float:
+               target_stopped: bool, half_count: float, window_shift: float = 0.0) -> float:
         """One servo tick. act_pos/act_vel: the position-loop encoder; vel_loop_vel/acc: the
-        velocity-loop encoder (same as act_* unless dual loop). Returns the output [V]."""
+        velocity-loop encoder (same as act_* unless dual loop). window_shift [m]: taken off the
+        position error that the at-rest windows judge (anti-hunting, ratioing, the breakaway
+        aid): half a count with window_centre count_middle. Returns the output [V]."""
         c = self.config
         if c.position_mode:
-            raw = cmd_pos - act_pos
+            error = cmd_pos - act_pos
             lim = c.position_error_limit
-            error = (-lim if raw < -lim else lim if raw > lim else raw) if lim > 0.0 else raw
-            meas, rate = act_pos, vel_loop_vel                          # (Ixx67 above)
+            if lim > 0.0:                                               # Ixx67
+                error = -lim if error < -lim else lim if error > lim else error
+            raw = cmd_pos - act_pos - window_shift
+            meas, rate = act_pos, vel_loop_vel
             # RMC anti-hunting: target stopped and inside the tolerance (or half a count).
             anti = target_stopped and db.in_anti_hunting_window(
                 target_stopped, raw, c.deadband_tolerance, half_count)

@@ -310,7 +310,8 @@ class ServoLoop:
         return ch.axis.update(dt, io.motor, io.load, sample_dt=sample_dt, age=age)
 
     def _report(self, ch: _Channel, out: Tick) -> None:
-        """Log what latched this tick: a fatal following error, a correction loop stopped."""
+        """Log what latched this tick: a fatal following error, a correction loop stopped, hunting
+        at rest."""
         axis = ch.axis
         faults = axis.fault_bits
         if faults & _FE_FATAL and not ch.faults & _FE_FATAL:
@@ -322,6 +323,12 @@ class ServoLoop:
             out.log.append(('warning', f'{ch.name}: correction moves stopped: the load error '
                                        f'grew from {diverged[0]} to {diverged[1]} counts'))
         ch.diverged = diverged
+        hunting = axis.hunting
+        if hunting.started:
+            out.log.append(('warning', f'{ch.name}: hunting: '
+                                       f'{hunting.describe(axis.loop_counts_per_m)} (autotune sizes '
+                                       'the anti-hunting window for the slide: deadband_tolerance, '
+                                       'fine_position_tolerance)'))
 
     def _scheduled(self, now: float, out: Tick) -> None:
         void = {a for _, a, _, epoch in self.scheduled if epoch != self.axes[a].command_epoch}

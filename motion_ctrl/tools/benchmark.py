@@ -196,11 +196,13 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 'topics') -> dict:
+def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 'topics',
+              moving: bool = False) -> dict:
     """Loop figures in real time. The observer (this process) reads only /diagnostics while the
     rate is measured: a third process taking 1 kHz streams would load the two cores it shares
     with plant and controller. The command transport (topics) is measured after, in a window of
-    its own."""
+    its own. `moving`: every axis jogs (at 20 mm/s, half of them negative) while the rate is
+    measured, else they rest."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -249,6 +251,13 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 't
         spin(30.0, until=lambda: len(diags) >= 2)        # up, and a second of loop behind it
         if len(diags) < 2:
             return {'error': 'nodes did not come up'}
+        if moving:
+            jog = node.create_publisher(JointState, md.TARGET_VELOCITY, 10)
+            spin(5.0, until=lambda: jog.get_subscription_count() > 0)
+            spin(0.5)
+            jog.publish(md.joint_state(node.get_clock().now().to_msg(), axes,
+                                       velocity=[0.02 * (-1) ** i for i in range(len(axes))]))
+            spin(0.5)                                     # at speed
         diags.clear()
         # The controller's CPU: its loop process and, on the servo bus (ros.servo_bus), the
         # bridge that started it, together.
@@ -372,6 +381,8 @@ def main(argv=None) -> int:
     ap.add_argument('--axes', default='1,6,64,256', help='axis counts of the dds section')
     ap.add_argument('--hardware', default='topics,sim',
                     help='comma-separated hardware of the dds and lockstep sections')
+    ap.add_argument('--moving', action='store_true',
+                    help='dds: every axis jogs while the rate is measured (default: at rest)')
     a = ap.parse_args(argv)
     sections = a.sections.split(',')
     from motion_ctrl.ros.processes import PRIVATE_NET, private_network
@@ -416,7 +427,7 @@ def main(argv=None) -> int:
     hardwares = a.hardware.split(',')
     if 'dds' in sections:
         print('\n## dds (the controller in real time; topics: plant + controller as two processes, '
-              'sim: the controller alone)\n')
+              f'sim: the controller alone; axes {"jogging" if a.moving else "at rest"})\n')
         print('| hardware | servo rate | axes | achieved [Hz] | % of nominal | jitter p50 / p99 / '
               'max [µs] | work per tick [µs] | controller CPU per tick [µs] (CPU %) | '
               'encoder → tick p50 / p99 [µs] | command → plant p50 / p99 [µs] |'
@@ -424,7 +435,7 @@ def main(argv=None) -> int:
         for rate in (float(x) for x in a.rates.split(',')):
             for n in (int(x) for x in a.axes.split(',')):
                 for hw in hardwares:
-                    r = bench_dds(rate, n, a.seconds, hw)
+                    r = bench_dds(rate, n, a.seconds, hw, a.moving)
                     if 'error' in r:
                         print(f'| {hw} | {rate:g} | {n} | {r["error"]} | | | | | | |')
                         continue

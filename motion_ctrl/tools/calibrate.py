@@ -367,9 +367,11 @@ def session_arguments(ap: argparse.ArgumentParser, tool: str, plant_example: str
 
 
 @contextlib.contextmanager
-def axis_session(args, tool: str, services: bool = False):
+def axis_session(args, tool: str, services: bool = False, truth: bool = False):
     """The ROS side of a tool run on one axis (calibrate, identify): its output folder, the
-    nodes when asked (--spawn, --lockstep), the tool's client, ready. Yields (client,
+    nodes when asked (--spawn, --lockstep), the tool's client, ready (`truth`: it reads the
+    simulated plant's plant_states too, for a tool that reports the true slide beside what
+    the controller saw). Yields (client,
     AxisUnderTest, out); stops everything after. Raises CalibrationError when the controller
     is not ready."""
     from motion_ctrl.ros import ros_env
@@ -390,7 +392,7 @@ def axis_session(args, tool: str, services: bool = False):
     else:
         rclpy.init()
         context = None
-    client = SlideClient(axes=(args.axis,), name=tool, truth=False, services=services,
+    client = SlideClient(axes=(args.axis,), name=tool, truth=truth, services=services,
                          context=context)
     try:
         if not client.wait_ready(30.0):

@@ -12,7 +12,9 @@ The measurement, with the loop closed as the axis is tuned (the excitation is th
 G = S_ry / S_ru, so the feedback does not bias it):
 
 1. friction: jogs at ±v and ±2v; the mean output at constant velocity is
-   coulomb·sign(v) + viscous·v + offset (analysis.identify.friction);
+   coulomb·sign(v) + viscous·v + offset (analysis.identify.friction); then a creep each way
+   (--creep, 0.2 mm/s), slow enough that a sticky slide sticks and slips: its breakaway
+   friction, the output's peak before each slip (analysis.identify.breakaway);
 2. a stepped sine over the band on a slow base motion (the nut stays on one flank of the
    backlash, the friction keeps its sign), volts -> motor and -> load position;
 3. a second stepped sine, denser and smaller, around the resonance the first one found (a
@@ -229,6 +231,32 @@ def friction_runs(axis, client, speeds, samples, timeout=10.0, log=print):
     return idf.friction(velocities, volts), velocities, volts
 
 
+def creep_runs(axis, client, speed: float, seconds: float, rate: float, counts_per_m: float,
+               timeout: float = 10.0, log=print) -> list:
+    """A creep at +speed, then -speed, `seconds` each: the breakaway friction each way
+    (analysis.identify.breakaway) from every joint_states sample of it."""
+    import msg_defs as md
+    name = axis.axis
+    found = []
+    for v in (speed, -speed):
+        client.pub_velocity.publish(md.joint_state(client.get_clock().now().to_msg(),
+                                                   [name], velocity=[v]))
+        msgs = axis.samples(max(10, int(round(seconds * rate))), timeout + seconds)
+        if client.stop_jogs([name], timeout) is None:
+            raise IdentifyError(f'creep at {v:g} m/s: no MOTION_DONE after the stop')
+        i = list(msgs[0].name).index(name)
+        t = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs]
+        b = idf.breakaway(t, [m.position[i] for m in msgs], [m.effort[i] for m in msgs],
+                          counts_per_m)
+        found.append(b)
+        log(f'identify: creep {v * 1e3:+.2f} mm/s: ' + (
+            f'{b.slips} slips, breakaway {b.breakaway:+.4f} V (the output before each)'
+            if b.breakaway is not None else
+            'the slide crept without sticking (breakaway = sliding friction)')
+            + f', mean output {b.creep:+.4f} V')
+    return found
+
+
 def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     """The whole measurement on an axis of a ready controller; returns what it found and wrote."""
     from motion_ctrl.ros.client import FAULTS
@@ -250,6 +278,9 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     try:
         fr, vels, volts = friction_runs(axis, client, (args.velocity, 2 * args.velocity),
                                         args.friction_samples, log=log)
+        creeps = creep_runs(axis, client, args.creep, args.creep_time, rate,
+                            float(axis.get('load_counts_per_m')['load_counts_per_m']),
+                            log=log) if args.creep > 0 else []
         if args.soft_loop != 1.0:
             soft = soft_loop(loop, args.soft_loop)
             log(f'identify: loop registers for the runs: kp {soft["kp"]:.4g}, ki 0, kd '
@@ -331,7 +362,15 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
         ratio_rms_error_db=ar.rms_error_db if ar else None,
         ratio_rms_error_deg=ar.rms_error_deg if ar else None,
         coulomb=fr.coulomb, viscous=fr.viscous, friction_offset=fr.offset,
+        coulomb_pos=fr.coulomb + fr.offset, coulomb_neg=fr.coulomb - fr.offset,
         seconds=seconds)
+    for side, b, coulomb in zip(('pos', 'neg'), creeps, (fr.coulomb + fr.offset,
+                                                        fr.coulomb - fr.offset)):
+        # a slide that crept without sticking breaks away at its sliding friction
+        result[f'breakaway_{side}'] = abs(b.breakaway) if b.breakaway is not None else coulomb
+        result[f'stick_slips_{side}'] = b.slips
+    if creeps:
+        result['creep_velocity'] = args.creep
     if si:
         fpv = si['force_per_volt']
         result |= dict(force_per_volt=fpv, motor_mass=si['motor_mass'],
@@ -381,9 +420,18 @@ def format_report(r: dict, ref: dict) -> str:
             ('slide inertia', f'{r["load_inertia"]:.4f}', 'V·s²/m',
              f'ratio slide/motor {r["inertia_ratio"]:.3f}'),
             ('stiffness', f'{r["stiffness"]:.4g}', 'V/m', ''),
-            ('Coulomb friction', f'{r["coulomb"]:.4f}', 'V', 'jogs both ways'),
-            ('viscous friction', f'{r["viscous"]:.4f}', 'V·s/m', 'jogs at two speeds'),
-            ('delay', f'{r["delay_ticks"]}', 'ticks', 'best fit')]
+            ('Coulomb friction', f'{r["coulomb"]:.4f}', 'V',
+             f'jogs both ways: +{r["coulomb_pos"]:.4f} / -{r["coulomb_neg"]:.4f}'),
+            ('viscous friction', f'{r["viscous"]:.4f}', 'V·s/m', 'jogs at two speeds')]
+    if 'breakaway_pos' in r:
+        creep = f'creep at ±{r["creep_velocity"] * 1e3:g} mm/s'
+        rows.append(('breakaway friction', f'+{r["breakaway_pos"]:.4f} / '
+                     f'-{r["breakaway_neg"]:.4f}', 'V', (
+                         f'{creep}: the output before the slide broke away, '
+                         f'{r["stick_slips_pos"]} / {r["stick_slips_neg"]} slips')
+                     if r['stick_slips_pos'] or r['stick_slips_neg'] else
+                     f'{creep}: the slide crept without sticking (= Coulomb)'))
+    rows.append(('delay', f'{r["delay_ticks"]}', 'ticks', 'best fit'))
     if 'force_per_volt' in r:
         how = ('from --slide-mass' if 'slide_mass' in ref else 'given (--force-per-volt)')
         rows += [('amplifier force per volt', f'{r["force_per_volt"]:.3f}', 'N/V', how),
@@ -446,6 +494,11 @@ def parser() -> argparse.ArgumentParser:
                     'and twice it; default 0.01)')
     ap.add_argument('--friction-samples', type=int, default=300,
                     help='joint_states samples averaged per friction jog (default 300)')
+    ap.add_argument('--creep', type=float, default=0.0002,
+                    help='creep velocity [m/s] for the breakaway friction, each way (default '
+                    '0.0002: a sticky slide sticks and slips; 0: no creep)')
+    ap.add_argument('--creep-time', type=float, default=1.5,
+                    help='time of each creep [s] (default 1.5)')
     ref = ap.add_mutually_exclusive_group()
     ref.add_argument('--slide-mass', type=float, default=None,
                      help='the slide\'s mass [kg], the one absolute reference: masses in kg, '
@@ -468,7 +521,9 @@ def main(argv=None) -> int:
         print('identify: --lockstep needs --spawn', file=sys.stderr)
         return 2
     bad = [n for n in ('amplitude', 'fine_amplitude', 'dwell', 'fine_dwell', 'velocity',
-                       'ratio_dwell', 'soft_loop') if not getattr(args, n) > 0]
+                       'ratio_dwell', 'soft_loop', 'creep_time') if not getattr(args, n) > 0]
+    if not args.creep >= 0:
+        bad.append('creep')
     if args.ratio_amplitude is not None and not args.ratio_amplitude > 0:
         bad.append('ratio_amplitude')
     bad += [n for n in ('points', 'fine_points', 'friction_samples') if getattr(args, n) < 2]
