@@ -12,6 +12,11 @@ PLANT_STATES = 'plant_states'          # plant ->: ground truth [m, m/s]
 AMPLIFIER_STATES = 'amplifier_states'  # plant ->: effort = amplifier output applied [V]
 DIAGNOSTICS = '/diagnostics'           # diagnostic_msgs/DiagnosticArray (absolute by convention)
 CLOCK = '/clock'                       # rosgraph_msgs/Clock in lockstep simulation
+# The trajectory action and state, in the controller node's own namespace (~ = <node>), as
+# joint_trajectory_controller names them (control_msgs; msg_defs.follow)
+FOLLOW_JOINT_TRAJECTORY = '~/follow_joint_trajectory'   # action FollowJointTrajectory
+CONTROLLER_STATE = '~/controller_state'  # controller ->: JointTrajectoryControllerState
+QUERY_STATE = '~/query_state'          # service QueryTrajectoryState: desired state at a time
 
 # Per-axis services: name -> std_srvs type name ('SetBool' or 'Trigger').
 SERVICES = {

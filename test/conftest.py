@@ -60,10 +60,11 @@ CORE_FILES = frozenset({
     'test_autotune.py', 'test_axis_rules.py', 'test_backlash.py', 'test_canopen.py',
     'test_coordinated.py',
     'test_core_without_ros.py', 'test_deadband.py', 'test_excitation.py', 'test_feedback_sync.py',
-    'test_gather.py', 'test_hardware.py', 'test_identify.py', 'test_iso230.py',
-    'test_motion_events.py', 'test_notch.py', 'test_plant.py', 'test_profile.py',
-    'test_registers.py', 'test_rest.py', 'test_scenarios.py', 'test_servo_law.py',
-    'test_servo_loop.py', 'test_servo_scenarios.py', 'test_settling.py', 'test_trajectory.py',
+    'test_follow_goal.py', 'test_gather.py', 'test_hardware.py', 'test_identify.py',
+    'test_iso230.py', 'test_motion_events.py', 'test_notch.py', 'test_plant.py',
+    'test_profile.py', 'test_registers.py', 'test_rest.py', 'test_scenarios.py',
+    'test_servo_law.py', 'test_servo_loop.py', 'test_servo_scenarios.py', 'test_settling.py',
+    'test_trajectory.py',
 })
 CORE_MARKS = ('core', 'core_slow')
 # What a ROS-free test may not import: ROS 2's Python packages and messages, and what reads bags.

@@ -195,6 +195,12 @@ class Profile:
         """`path` is the segment running now (not yet ended, stopped or replaced)."""
         return self._path is path and not self._raw_done
 
+    @property
+    def path(self) -> Path | None:
+        """The path of the present segment, running or ended (None once another command
+        replaced it): what a trajectory's watcher compares with the path it started."""
+        return self._path
+
     def jog(self, velocity: float) -> None:
         """Velocity move; 0 decelerates to rest.
 

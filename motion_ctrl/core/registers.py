@@ -176,6 +176,15 @@ CONTROLLER_GLOBALS = (
        'eds, torque_per_volt; doc/canopen.md); this node is the SYNC producer.',
        'ros2_control hardware component, LinuxCNC HAL, PMAC servo interrupt',
        choices=('topics', 'sim', 'canopen'), read_only=True),
+    # follow_joint_trajectory and controller_state (motion_ctrl.ros.follow_action)
+    _r('action_monitor_rate', 'double', 20.0, 'Hz', 'Rate of the follow_joint_trajectory '
+       'feedback (desired, actual and error of the running goal\'s axes).',
+       'joint_trajectory_controller action_monitor_rate', min=0.0, min_exclusive=True,
+       max=1000.0, read_only=True),
+    _r('state_publish_rate', 'double', 50.0, 'Hz', 'Rate of <node>/controller_state '
+       '(control_msgs/JointTrajectoryControllerState of every axis); 0: not published.',
+       'joint_trajectory_controller state_publish_rate (Humble)', min=0.0, max=1000.0,
+       read_only=True),
 )
 
 MODES = ('position_pid', 'position_ipd', 'velocity_pid', 'velocity_ipd')
@@ -300,6 +309,23 @@ AXIS_REGISTERS = (
        'moves per move (a reversal inside the gap can take one per count of backlash, twice '
        'over when the slide overshoots: 28 in the headline, 50 and more over DDS).', '',
        min=0, max=1000),
+    # The defaults of a follow_joint_trajectory goal (motion_ctrl.core.follow_goal); a goal's
+    # path_tolerance, goal_tolerance and goal_time_tolerance override them.
+    _r('trajectory_tolerance', 'double', 0.001, 'm', 'follow_joint_trajectory: largest '
+       'following error while the trajectory runs, else the goal ends with '
+       'PATH_TOLERANCE_VIOLATED and its axes stop (0 = not checked).',
+       'joint_trajectory_controller constraints.<joint>.trajectory', min=0.0),
+    _r('goal_tolerance', 'double', 0.0, 'm', 'follow_joint_trajectory: largest distance of the '
+       'actual position from the last point for success, besides MOTION_DONE (0 = only '
+       'MOTION_DONE, i.e. fine_position_tolerance).',
+       'joint_trajectory_controller constraints.<joint>.goal', min=0.0),
+    _r('stopped_velocity_tolerance', 'double', 0.01, 'm/s', 'follow_joint_trajectory: largest '
+       'actual velocity for success at the end (0 = not checked).',
+       'joint_trajectory_controller constraints.stopped_velocity_tolerance', min=0.0),
+    _r('goal_time', 'double', 2.0, 's', 'follow_joint_trajectory: time after the trajectory\'s '
+       'end within which the axis must be settled (MOTION_DONE) and within its goal tolerance, '
+       'else GOAL_TOLERANCE_VIOLATED (0 = no deadline, as joint_trajectory_controller\'s '
+       'default).', 'joint_trajectory_controller constraints.goal_time', min=0.0),
     # The test signal of <axis>/excite (motion_ctrl.core.excitation, .gather): read when the
     # service starts a run; a change applies to the next run, never to one in progress.
     _r('excitation_signal', 'string', 'prbs', '', '<axis>/excite: the test signal added to '

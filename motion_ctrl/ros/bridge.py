@@ -17,7 +17,10 @@ with the same interface, by reading the node's endpoints from the servo bus's gr
   of the bus's own stream too: it reaches the loop a hop late and twice, and the loop drops a
   sample older than the one it holds (core.servo_loop.ServoLoop.feedback);
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
-  unchanged) is answered by calling the node's service and returning its response.
+  unchanged) is answered by calling the node's service and returning its response. An action is
+  three services and two topics under `<name>/_action/`, mirrored as such (its goal ids
+  unchanged); its get_result, which answers only when the goal ends, is forwarded without a
+  timeout and without holding a thread.
 
 Of `/rosout` and `/parameter_events`, which the other node on the bus publishes too, only the
 node's own messages are copied out.
@@ -49,13 +52,26 @@ UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'   # rmw's name for an endpoint whose node i
 STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
 
 
+# An action's parts on the graph ('<pkg>/action/<Action>_<part>') are classes of the action's
+# Impl in Python; its cancel service and status topic are action_msgs' own types.
+ACTION_PARTS = {'SendGoal': 'SendGoalService', 'GetResult': 'GetResultService',
+                'FeedbackMessage': 'FeedbackMessage'}
+
+
 def interface_type(name: str):
-    """'sensor_msgs/msg/JointState' -> the class; None when not installed here."""
+    """'sensor_msgs/msg/JointState' (or an action's part, 'control_msgs/action/
+    FollowJointTrajectory_SendGoal') -> the class; None when not installed here."""
     pkg, kind, cls = name.split('/')
     try:
-        return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
-    except (ImportError, AttributeError):
+        module = importlib.import_module(f'{pkg}.{kind}')
+    except ImportError:
         return None
+    found = getattr(module, cls, None)
+    if found is None and kind == 'action' and '_' in cls:
+        action, part = cls.rsplit('_', 1)
+        found = getattr(getattr(getattr(module, action, None), 'Impl', None),
+                        ACTION_PARTS.get(part, ''), None)
+    return found
 
 
 def outward_qos(info) -> QoSProfile:
@@ -280,6 +296,9 @@ class Bridge:
         return t
 
     def _forward(self, client, service: str):
+        if service.endswith('/_action/get_result'):
+            return self._forward_result(client)
+
         def answer(request, response):
             try:
                 return client.call(request, timeout_sec=SERVICE_TIMEOUT)
@@ -287,6 +306,18 @@ class Bridge:
                 self.log(f'bridge: {self.fqn} did not answer {service} within '
                          f'{SERVICE_TIMEOUT:g} s')
                 return response
+        return answer
+
+    def _forward_result(self, client):
+        """An action's get_result is answered when its goal ends, however long that takes: it
+        is forwarded without a timeout and awaited as a coroutine, so that no thread of the
+        bridge waits on it (the client's answer wakes the executor that awaits)."""
+        async def answer(request, response):
+            future = client.call_async(request)
+            executor = self.public.executor
+            if executor is not None:
+                future.add_done_callback(lambda _: executor.wake())
+            return await future
         return answer
 
     def dropped(self, topic: str, e: Exception) -> None:

@@ -63,6 +63,7 @@ import msg_defs as md
 from motion_ctrl.ros import ros_env, servo_bus, ros_params
 from motion_ctrl.ros.hardware_topics import TopicsHardware, seconds_of, stamp_ns, stamp_of
 from motion_ctrl.ros.plant_states import PlantStates
+from motion_ctrl.ros.follow_action import FollowJointTrajectoryServer
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
@@ -171,6 +172,9 @@ class ControllerNode(ros_params.RegisterNode):
         threading.Thread(target=self._gather_loop, name='gather', daemon=True).start()
         for a in self.axis_names:
             self._make_services(a)
+        # follow_joint_trajectory, controller_state, query_state (issue 28)
+        self.follow = FollowJointTrajectoryServer(self, MAX_SCHEDULE, MAX_TARGET_NAMES,
+                                                  MAX_TRAJECTORY_POINTS)
 
         # The status words: each on a change, and each again at least every STATUS_PERIOD,
         # a few axes a tick in turn (`_refresh_status`).
@@ -535,6 +539,7 @@ class ControllerNode(ros_params.RegisterNode):
         for a in tick.changed:
             self.pub_status[a].send(UInt32(data=self.axes[a].word))
         self._refresh_status()
+        self.follow.tick(now)            # the trajectory goal, after the outputs (never waits)
         self.stats.work(time.perf_counter() - t_start)
 
     def _refresh_status(self) -> None:
@@ -611,6 +616,8 @@ class ControllerNode(ros_params.RegisterNode):
         # as ~30 lines of "leaked" on every stop).
         self.trajectories.put(None)
         self.gathers.put(None)
+        if hasattr(self, 'follow'):      # (a node refused half-made has none)
+            self.follow.destroy()
         super().destroy_node()
 
     def _publish_diagnostics(self) -> None:

@@ -96,6 +96,43 @@ def plot(results: dict, png: pathlib.Path, magnify: float = 200.0) -> None:
     plt.close(fig)
 
 
+class _ActionSender:
+    """The shapes as FollowJointTrajectory goals (control_msgs), as MoveIt's trajectory
+    execution sends them: the goal, then its result."""
+
+    def __init__(self, client):
+        from control_msgs.action import FollowJointTrajectory
+        from rclpy.action import ActionClient
+        self.client = client
+        self.Goal = FollowJointTrajectory.Goal
+        self.action = ActionClient(client, FollowJointTrajectory,
+                                   '/controller/follow_joint_trajectory')
+        if not client.spin_until(self.action.server_is_ready, 10.0):
+            raise RuntimeError('/controller/follow_joint_trajectory is not offered')
+
+    def follow(self, names, points: tj.Points) -> str:
+        """Send the goal, wait for its result; the outcome's name (or why none came)."""
+        from action_msgs.msg import GoalStatus
+        from builtin_interfaces.msg import Time
+
+        import msg_defs as md
+        goal = self.Goal(trajectory=md.joint_trajectory(
+            Time(), names, points.times, points.positions, points.velocities,
+            points.accelerations))
+        sent = self.action.send_goal_async(goal)
+        if not self.client.spin_until(sent.done, 10.0) or not sent.result().accepted:
+            return 'not accepted'
+        result = sent.result().get_result_async()
+        if not self.client.spin_until(result.done, float(points.times[-1]) + 10.0):
+            return 'no result'
+        r = result.result()
+        if r.status != GoalStatus.STATUS_SUCCEEDED:
+            print(f'draw: the goal ended ({r.result.error_code}): {r.result.error_string}',
+                  file=sys.stderr)
+        return {GoalStatus.STATUS_SUCCEEDED: 'SUCCEEDED', GoalStatus.STATUS_ABORTED: 'ABORTED',
+                GoalStatus.STATUS_CANCELED: 'CANCELED'}.get(r.status, str(r.status))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--shapes', default='circle,square',
@@ -112,6 +149,10 @@ def main(argv=None) -> int:
                          'scheduling lets the nodes wait)')
     ap.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
                     help='another controller parameter (repeatable), e.g. x.kp:=20000')
+    ap.add_argument('--action', action='store_true',
+                    help='send each shape as a control_msgs FollowJointTrajectory goal to '
+                         '/controller/follow_joint_trajectory (as MoveIt does) instead of on '
+                         'joint_trajectory; the last column is then the goal\'s result')
     ap.add_argument('-o', '--out', default=None, help='directory (default out/draw-<time>)')
     args = ap.parse_args(argv)
     shapes = [s.strip() for s in args.shapes.split(',') if s.strip()]
@@ -161,16 +202,26 @@ def main(argv=None) -> int:
                   file=sys.stderr)
             return 1
         client.spin_until(lambda: client.pub_trajectory.get_subscription_count() > 0, 5.0)
+        action = _ActionSender(client) if args.action else None
+        done_column = 'result' if action else 'MOTION_DONE'
         print(f'{"shape":<8}{"points":>7}{"time [s]":>9}{"contour RMS":>13}{"peak":>8}'
-              f'{"x error":>9}{"y error":>9}{"MOTION_DONE":>13}   (counts; after 1st quarter)')
+              f'{"x error":>9}{"y error":>9}{done_column:>13}   (counts; after 1st quarter)')
         for shape in shapes:
             start = dict(command)
             points, _ = shape_points(shape, start, args.radius, args.speed)
             truth.clear()
             t0 = time.time()
-            done = client.follow(list(AXES), points.times, points.positions, points.velocities,
-                                 points.accelerations) is not None
-            client.spin_for(0.1)
+            if action is not None:
+                outcome = action.follow(list(AXES), points)
+                done = outcome == 'SUCCEEDED'
+            else:
+                outcome = 'yes'
+                done = client.follow(list(AXES), points.times, points.positions,
+                                     points.velocities, points.accelerations) is not None
+            # the user's copy of plant_states can lag a loaded machine (README Notes): the
+            # final figures from a sample of after the end
+            client.truth_since(time.time())
+            client.spin_for(0.05)
             samples = np.array(truth).reshape(-1, 3)
             if not done or len(samples) == 0:
                 print(f'{shape:<8}did not finish (see the logs in {out})')
@@ -183,7 +234,7 @@ def main(argv=None) -> int:
             errs = [(samples[-1, 1 + j] - end[j]) * LOAD_COUNTS_PER_M for j in range(2)]
             print(f'{shape:<8}{len(points.times):>7}{points.times[-1]:>9.2f}{r["rms"]:>13.2f}'
                   f'{r["peak"]:>8.2f}{errs[0]:>+9.2f}{errs[1]:>+9.2f}'
-                  f'{"yes":>13}')
+                  f'{outcome:>13}')
     finally:
         client.destroy_node()
         rclpy.try_shutdown()
