@@ -26,6 +26,7 @@ VERSION = '0.1.0'
 EXECUTABLES = {
     'controller': 'motion_ctrl.ros.controller_node:main',
     'plant': 'motion_ctrl.ros.plant_node:main',
+    'virtual_drive': 'motion_ctrl.ros.virtual_drive_node:main',
     'notch': 'motion_ctrl.tools.notch:main',
     'demo': 'motion_ctrl.tools.demo:main',
     'scenarios': 'motion_ctrl.tools.scenarios:main',
@@ -108,7 +109,8 @@ setup(
     name=PACKAGE,
     version=VERSION,
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={PACKAGE + '.ros': ['*.xml']},     # the servo bus's Fast DDS profile
+    # the servo bus's Fast DDS profile; the generic EDS files of hardware: canopen
+    package_data={PACKAGE + '.ros': ['*.xml'], PACKAGE + '.canopen': ['eds/*.eds']},
     data_files=data_files,
     ext_modules=compiled_extensions(),
     install_requires=['setuptools'],

@@ -18,7 +18,7 @@ from conftest import CORE_FILES, REPO_ROOT, ROS_PACKAGES, core_only
 # The layout is the architecture: these subpackages are plain Python (numpy, scipy, ruckig) and
 # must import without ROS: the servo core, the simulated machine and the measurement maths. The
 # ROS shell (ros/) and the programs (tools/) may import ROS.
-ROS_FREE = ['core', 'sim', 'analysis']
+ROS_FREE = ['core', 'sim', 'analysis', 'canopen']
 SHELL = ['ros', 'tools']
 PACKAGE = os.path.join(REPO_ROOT, 'motion_ctrl')
 

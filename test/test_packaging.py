@@ -16,7 +16,8 @@ PACKAGE = 'motion_ctrl'
 # The contract: `ros2 run motion_ctrl NAME` for each of these names (README); which module
 # serves each is setup.py's business, checked below to exist.
 EXPECTED_NAMES = {'controller', 'plant', 'notch', 'demo', 'scenarios', 'tune', 'benchmark',
-                  'record', 'report', 'soak', 'draw', 'calibrate', 'identify', 'autotune'}
+                  'record', 'report', 'soak', 'draw', 'calibrate', 'identify', 'autotune',
+                  'virtual_drive'}
 LAUNCH_ARGUMENTS = {'controller_params', 'plant_params', 'use_sim_time', 'axes', 'hardware'}
 
 

@@ -24,6 +24,14 @@ def test_readme_tables_are_generated_from_the_table():
             'README register table is stale: run python -m motion_ctrl.core.registers --write .'
 
 
+@pytest.mark.parametrize('path', sorted(R.DOC_BLOCKS))
+def test_doc_tables_are_generated_from_the_table(path):
+    text = (REPO / path).read_text()
+    for key, make in R.DOC_BLOCKS[path].items():
+        assert R.readme_block(text, key) == make(), \
+            f'{path} register table is stale: run python -m motion_ctrl.core.registers --write .'
+
+
 def test_controller_yaml_holds_every_register_in_ros2_param_load_format():
     data = yaml.safe_load((REPO / 'params/controller.yaml').read_text())
     params = data['controller']['ros__parameters']

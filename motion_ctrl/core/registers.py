@@ -171,8 +171,11 @@ CONTROLLER_GLOBALS = (
        'substep_rate; a params file\'s plant: section counts too); it publishes plant_states, '
        'amplifier_states and <axis>/amplifier_fault as the plant node does, and with '
        'use_sim_time it is the clock: it runs as fast as the machine allows and publishes '
-       '/clock.', 'ros2_control hardware component, LinuxCNC HAL, PMAC servo interrupt',
-       choices=('topics', 'sim'), read_only=True),
+       '/clock. canopen: CiA 402 drives in cyclic synchronous torque mode on one CAN bus '
+       '(can_interface, can_channel, can_bitrate; per axis can_node_id, load_encoder_node_id, '
+       'eds, torque_per_volt; doc/canopen.md); this node is the SYNC producer.',
+       'ros2_control hardware component, LinuxCNC HAL, PMAC servo interrupt',
+       choices=('topics', 'sim', 'canopen'), read_only=True),
     # follow_joint_trajectory and controller_state (motion_ctrl.ros.follow_action)
     _r('action_monitor_rate', 'double', 20.0, 'Hz', 'Rate of the follow_joint_trajectory '
        'feedback (desired, actual and error of the running goal\'s axes).',
@@ -491,12 +494,83 @@ PLANT_GLOBALS = (
 PLANT_AXIS = {r.name: r for r in PLANT_PARAMETERS}
 PLANT_GLOBAL = {r.name: r for r in PLANT_GLOBALS}
 
+# `hardware: canopen` (motion_ctrl.canopen, doc/canopen.md): the bus, and each axis's nodes on
+# it. The controller and the emulated drive (`virtual_drive`) share these names.
+CAN_GLOBALS = (
+    _r('can_interface', 'string', 'socketcan', '', "python-can's interface name: socketcan "
+       '(Linux SocketCAN: PEAK, Kvaser, IXXAT, ... USB adapters with a kernel driver), pcan, '
+       'kvaser, ixxat, vector, slcan, gs_usb, ...; virtual (in one process) and udp_multicast '
+       '(between processes of one machine) are emulated buses.', 'python-can interface',
+       read_only=True),
+    _r('can_channel', 'string', 'can0', '', "python-can's channel: can0 (socketcan), "
+       'PCAN_USBBUS1 (pcan), 0 (kvaser), a multicast group such as 239.74.163.2 '
+       '(udp_multicast), any name (virtual).', 'python-can channel', read_only=True),
+    _r('can_bitrate', 'integer', 1_000_000, 'bit/s', 'Bit rate of the bus (CiA 301: 10 k to '
+       '1 M); it bounds the servo rate: the SYNC and every PDO of a cycle must fit 80 % of it '
+       '(doc/canopen.md). For socketcan the interface is set up outside (ip link set can0 type '
+       'can bitrate ...); the figure is still the one the rate is checked against.',
+       'CiA 301 bit timing', min=10_000, max=1_000_000, read_only=True),
+)
+CAN_AXIS = (
+    _r('can_node_id', 'integer', 1, '', "The axis's CiA 402 drive: its CANopen node id.",
+       'CiA 301 node-ID', min=1, max=127, read_only=True),
+    _r('load_encoder_node_id', 'integer', 0, '', 'Where the load (linear) encoder comes from: '
+       "0 = the drive's additional position actual value 60E4h:01 (a second encoder input on "
+       'the drive); otherwise the node id of a CiA 406 encoder (position value 6004h).',
+       'CiA 402 60E4h / CiA 406 6004h', min=0, max=127, read_only=True),
+)
+CANOPEN_AXIS = CAN_AXIS + (
+    _r('eds', 'string', '', '', "The drive's EDS file ('' = the shipped generic CiA 402 one, "
+       'motion_ctrl/canopen/eds/cia402_drive.eds): the objects the start-up reads and writes.',
+       'CiA 306 EDS', read_only=True),
+    _r('torque_per_volt', 'double', 100.0, '‰/V', 'The servo output [V] as target torque '
+       "6071h [‰ of the drive's rated torque 6076h]: 100 makes ±10 V the rated torque, as a "
+       "torque-mode amplifier's input scaling does (the default slide: 0.05 N·m/V). The gains "
+       'stay in volts.', 'analog amplifier input scaling; CiA 402 6071h', min=0.0,
+       max=3276.7, min_exclusive=True),
+    _r('estop_quick_stop', 'integer', 0, '', "1: an ESTOP is also the drive's quick stop: "
+       'while the axis is ESTOPPED the controlword says quick stop (02h), and the drive brakes '
+       'on its own at 6085h (written at start-up: estop_deceleration in motor counts/s²) and '
+       "then disables (605Ah = 2), whatever the loop does; the next move enables it again. 0: "
+       "the controller's ESTOP profile alone, through the drive in torque mode.",
+       'CiA 402 quick stop, 605Ah / 6085h; RMP ESTOP', min=0, max=1, read_only=True),
+)
+
 # The registers a hardware backend adds to the controller (declared only when `hardware` chooses
 # it): (controller-wide, per axis).
 HARDWARE_REGISTERS: dict[str, tuple[tuple[Register, ...], tuple[Register, ...]]] = {
     'topics': ((), ()),
     'sim': ((PLANT_GLOBAL['substep_rate'],), PLANT_PARAMETERS),
+    'canopen': (CAN_GLOBALS, CANOPEN_AXIS),
 }
+
+# The emulated drive (`ros2 run motion_ctrl virtual_drive`, motion_ctrl.canopen.virtual_drive):
+# the bus and node ids as the controller's, the slide's physics as the plant's, and what it can
+# be made to do wrong.
+VIRTUAL_DRIVE_GLOBALS = (
+    _r('axes', 'string_array', ['x'], '', 'Names of the emulated axes (one drive each).',
+       read_only=True),
+    *CAN_GLOBALS,
+    PLANT_GLOBAL['substep_rate'],
+    REALTIME_PRIORITY,
+)
+VIRTUAL_DRIVE_FAULTS = (
+    _r('inject_fault', 'integer', 0, '', 'A change to a non-zero error code makes the drive '
+       'fault with it at the next cycle, as its own protection would (0x2310 over-current, '
+       '0x4310 drive temperature, ...): EMCY, 603Fh, statusword fault bit, 0 torque and the '
+       'dynamic brake, until a fault reset.', 'CiA 402 603Fh / CiA 301 EMCY', min=0,
+       max=0xFFFF),
+    _r('device_type', 'integer', 0x00020192, '', "1000h as the drive reports it (the master "
+       'checks the low 16 bits: 402); another value makes a drive the controller refuses.',
+       'CiA 301 1000h', min=0, max=0xFFFFFFFF, read_only=True),
+    _r('supported_modes', 'integer', 0x200, '', '6502h as the drive reports it: bit 9 is '
+       'cyclic synchronous torque, the only mode it runs; without it the controller refuses '
+       'the drive.', 'CiA 402 6502h', min=0, max=0xFFFFFFFF, read_only=True),
+    _r('refuse_mapping', 'integer', 0, '', 'An object index the drive refuses to map into a '
+       'PDO (SDO abort 06040041h), 0 = none: the controller refuses the drive naming it.',
+       'CiA 301 SDO abort', min=0, max=0xFFFF, read_only=True),
+)
+VIRTUAL_DRIVE_AXIS = CAN_AXIS + PLANT_PARAMETERS + VIRTUAL_DRIVE_FAULTS
 
 
 def plant_consistency(v: dict) -> list[str]:
@@ -584,12 +658,21 @@ GENERATED = {
     'params/controller.yaml': lambda: params_yaml('controller', CONTROLLER_GLOBALS,
                                                   AXIS_REGISTERS),
     'params/plant.yaml': lambda: params_yaml('plant', PLANT_GLOBALS, PLANT_PARAMETERS),
+    'params/virtual_drive.yaml': lambda: params_yaml('virtual_drive', VIRTUAL_DRIVE_GLOBALS,
+                                                     VIRTUAL_DRIVE_AXIS),
 }
 
 
 README_BLOCKS = {
     'registers:controller': lambda: markdown_table(AXIS_REGISTERS),
     'registers:plant': lambda: markdown_table(PLANT_PARAMETERS),
+}
+# Generated blocks of the documentation pages (doc/<topic>.md), as README's.
+DOC_BLOCKS = {
+    'doc/canopen.md': {
+        'registers:canopen': lambda: markdown_table(CAN_GLOBALS + CANOPEN_AXIS),
+        'registers:virtual_drive': lambda: markdown_table(VIRTUAL_DRIVE_FAULTS),
+    },
 }
 
 
@@ -599,8 +682,8 @@ def readme_block(text: str, key: str) -> str:
     return text[start:text.index(f'<!-- /{key} -->')]
 
 
-def update_readme(text: str) -> str:
-    for key, make in README_BLOCKS.items():
+def update_readme(text: str, blocks=None) -> str:
+    for key, make in (README_BLOCKS if blocks is None else blocks).items():
         text = text.replace(f'<!-- {key} -->\n{readme_block(text, key)}',
                             f'<!-- {key} -->\n{make()}')
     return text
@@ -610,7 +693,8 @@ def main(argv=None) -> int:
     import argparse
     import pathlib
     ap = argparse.ArgumentParser(description='Print or write what the register table generates.')
-    ap.add_argument('--yaml', choices=('controller', 'plant'), help='print a params YAML')
+    ap.add_argument('--yaml', choices=('controller', 'plant', 'virtual_drive'),
+                    help='print a params YAML')
     ap.add_argument('--markdown', choices=('controller', 'plant'), help='print a README table')
     ap.add_argument('--write', metavar='REPO',
                     help='rewrite params/*.yaml and the README tables under REPO')
@@ -625,6 +709,9 @@ def main(argv=None) -> int:
             (pathlib.Path(a.write) / path).write_text(make())
         readme = pathlib.Path(a.write) / 'README.md'
         readme.write_text(update_readme(readme.read_text()))
+        for path, blocks in DOC_BLOCKS.items():
+            doc = pathlib.Path(a.write) / path
+            doc.write_text(update_readme(doc.read_text(), blocks))
     return 0
 
 

@@ -12,9 +12,10 @@ period.
 
 The servo cycle's I/O goes through the hardware interface the read-only parameter `hardware`
 chooses (motion_ctrl.core.hardware): `topics` (ros.hardware_topics: the plant node over the
-`command` / `encoders` topics) or `sim` (sim.hardware: the slide's physics stepped inside this
+`command` / `encoders` topics), `sim` (sim.hardware: the slide's physics stepped inside this
 loop, configured by the plant's registers declared on this node, published as the plant node
-does by ros.plant_states).
+does by ros.plant_states) or `canopen` (canopen.master: CiA 402 drives on a CAN bus, this node
+their SYNC producer; real time only).
 
 With `use_sim_time` and `hardware: topics` the servo tick is driven by the encoder samples
 instead of a timer (like a drive synchronised to its fieldbus cycle): each new sample, stamped in
@@ -135,6 +136,8 @@ class ControllerNode(ros_params.RegisterNode):
         self.hardware.configure()          # raises HardwareError: one line, exit 2 (run)
         self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
                               self.sim_time, self.hardware)
+        if self.hardware_kind == 'canopen':
+            self.hardware.watch(self.axes)
         self.add_on_set_parameters_callback(self.validate)
         self.add_post_set_parameters_callback(self._stage)
 
@@ -186,6 +189,12 @@ class ControllerNode(ros_params.RegisterNode):
         self.period_ns = round(self.period * 1e9)
         self.grid_ns: int | None = None           # the servo grid's last tick (hardware sim)
         self.sim_clock = self.sim_time and self.hardware_kind == 'sim'
+        # hardware canopen: the bus is the clock. The drives take each SYNC as one period
+        # (1006h), so the loop's time is the SYNC count: a tick that comes late stretches the
+        # wall time of a cycle, not the cycle (a PLC motion task's time base); how late the
+        # SYNCs really go out is in /diagnostics (can_sync_interval_*). The messages it
+        # publishes keep the wall clock's stamps.
+        self.bus_ns: int | None = None
         if not self.sim_time:
             # (a lambda: rclpy hands a TimerInfo to a callback that takes an argument)
             self.timer = self.create_timer(self.period, lambda: self._tick())
@@ -234,7 +243,33 @@ class ControllerNode(ros_params.RegisterNode):
             self.plant_states = PlantStates(self, self.axis_names, {
                 a: values[a]['command_timeout'] for a in self.axis_names}, READERS_REFRESH)
             return hardware
+        if self.hardware_kind == 'canopen':
+            return self._canopen(values)
         return TopicsHardware(self, self.axis_names, on_sample=self._on_sample)
+
+    def _canopen(self, values: dict):
+        from motion_ctrl.canopen.master import AxisNodes, CanopenHardware
+        if self.sim_time:
+            raise ValueError('hardware: canopen runs in real time: the drives step on its SYNC; '
+                             'use_sim_time is for topics or sim')
+        g = values[None]
+        return CanopenHardware(
+            {a: AxisNodes(values[a]['can_node_id'], values[a]['load_encoder_node_id'],
+                          values[a]['eds'], values[a]['torque_per_volt'],
+                          round(self.values[a]['estop_deceleration']
+                                * self.values[a]['motor_counts_per_m'])
+                          if values[a]['estop_quick_stop'] else 0)
+             for a in self.axis_names}, self.period, g['can_interface'], g['can_channel'],
+            g['can_bitrate'], log=self._hardware_log)
+
+    def _hardware_log(self, level: str, text: str) -> None:
+        logger = self.get_logger()
+        if level == 'error':
+            logger.error(text)
+        elif level == 'warning':
+            logger.warning(text)
+        else:
+            logger.info(text)
 
     def _sim_consistency(self, values: dict) -> list[str]:
         """The controller's cross-register rules and the plant's, each on its own registers."""
@@ -247,23 +282,27 @@ class ControllerNode(ros_params.RegisterNode):
         own = self.loop.current(axis)
         if self.hardware_kind == 'sim':
             return own | self.hardware.plants[axis].params
-        return own
+        return own | self.hardware_values[axis]
 
     def live_refusal(self, axis: str, changes: dict):
         return self.axes[axis].live_change_refusal(
-            {k: v for k, v in changes.items() if k not in PLANT_AXIS})
+            {k: v for k, v in changes.items() if k not in self.hardware_values[axis]})
 
     def _stage(self, params) -> None:
         for p in params:
             if p.name == 'feedback_timeout':
                 self.loop.feedback_timeout = p.value
         for axis, changes in self.axis_changes(params).items():
-            plant = {k: v for k, v in changes.items() if k in PLANT_AXIS}
-            if plant:                 # (hardware sim: validated above, applied between ticks)
-                self.hardware.configure_plant(axis, plant)
+            own = self.hardware_values[axis]
+            hw = {k: v for k, v in changes.items() if k in own}
+            if hw and self.hardware_kind == 'sim':   # (validated above, applied between ticks)
+                self.hardware.configure_plant(axis, hw)
                 self.plant_states.command_timeout[axis] = \
                     self.hardware.plants[axis].params['command_timeout']
-                changes = {k: v for k, v in changes.items() if k not in PLANT_AXIS}
+            elif hw:
+                self.hardware.configure_axis(axis, hw)
+            own.update(hw)
+            changes = {k: v for k, v in changes.items() if k not in own}
             if changes:
                 self.loop.stage(axis, changes)
 
@@ -464,6 +503,11 @@ class ControllerNode(ros_params.RegisterNode):
         else:
             stamp = stamp_msg
         now = seconds_of(stamp)
+        if self.hardware_kind == 'canopen':
+            # (the messages keep the wall clock's stamp: they line up with plant_states)
+            self.bus_ns = (round(now * 1e9) if self.bus_ns is None
+                           else self.bus_ns + self.period_ns)
+            now = self.bus_ns * 1e-9
         while not self.prepared.empty():
             self._start_trajectory(*self.prepared.get_nowait())
         if self.hardware_kind == 'topics':
@@ -578,6 +622,9 @@ class ControllerNode(ros_params.RegisterNode):
 
     def _publish_diagnostics(self) -> None:
         extra = {} if self.sync is None else {'timer_phase_shifts': self.sync.shifts}
+        figures = getattr(self.hardware, 'figures', None)
+        if figures is not None:
+            extra |= figures()
         self.pub_diag.send(diagnostics_message(
             self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes, extra))
         self.stats.reset_window()
@@ -687,8 +734,10 @@ def run(node_class, args=None) -> int:
         # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
         # <name>"; the reason names the parameter too.
         msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
-        where = ros_params.where_from(msg, argv)
-        print(f'{node_class.__name__}: bad parameter{f" (from {where})" if where else ""}: '
+        hardware = isinstance(e, HardwareError)
+        where = None if hardware else ros_params.where_from(msg, argv)
+        what = 'hardware' if hardware else 'bad parameter'
+        print(f'{node_class.__name__}: {what}{f" (from {where})" if where else ""}: '
               f'{msg}', file=sys.stderr, flush=True)
         # Fix: the context's shutdown destroys the half-built node, and rclpy waits for its
         # handle to be free; once in a CI run that wait never ended (a plant with an unknown

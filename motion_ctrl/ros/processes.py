@@ -10,6 +10,7 @@ import pathlib
 import signal
 import subprocess
 import sys
+from typing import Any
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]     # the source tree, or site-packages
 REPO_PARAMS = ROOT / 'params'
@@ -137,3 +138,59 @@ def start_sim(controller_params: dict | None = None, plant_params: dict | None =
                              (controller_params or {}) | plant | {'hardware': 'sim'},
                              log_file(log_dir, 'controller'), env=env)
     return (controller,)
+
+
+# `hardware: canopen` between processes: python-can's udp_multicast bus, in a network namespace
+# of its own (PRIVATE_NET) so that no frame leaves the machine.
+CAN_BUS: dict[str, Any] = {'can_interface': 'udp_multicast', 'can_channel': '239.74.163.2',
+           'can_bitrate': 1_000_000}
+PRIVATE_NET = 'MOTION_CTRL_PRIVATE_NET'     # set (to 1) inside private_network's namespace
+
+
+def private_network(argv: list[str]) -> list[str]:
+    """`argv` as a command that runs in a new network namespace, made for it and gone with it
+    (unshare: as root, or an unprivileged user with user namespaces): only its loopback, up,
+    with a route for multicast on it, so udp_multicast's datagrams stay inside. `PRIVATE_NET`
+    is set there."""
+    unshare = ['unshare', '--net'] + ([] if os.geteuid() == 0 else ['--map-root-user'])
+    setup = ('ip link set lo up && ip route add 224.0.0.0/4 dev lo && '
+             f'{PRIVATE_NET}=1 exec "$@"')
+    return unshare + ['sh', '-c', setup, 'sh'] + list(argv)
+
+
+DRIVE_BOOT = 60.0        # s the emulated drives may take to be heard on the bus
+
+
+def heard(bus: dict, first: int, last: int, timeout: float) -> bool:
+    """Whether a frame with a CAN-ID in [first, last] (heartbeats: 701h-77Fh) comes on the bus
+    `bus` (CAN_BUS's keys) within `timeout` s."""
+    import time
+    import can
+    with can.Bus(interface=bus['can_interface'], channel=bus['can_channel']) as listener:
+        end = time.monotonic() + timeout
+        while (left := end - time.monotonic()) > 0:
+            msg = listener.recv(min(left, 0.5))
+            if msg is not None and first <= msg.arbitration_id <= last:
+                return True
+    return False
+
+
+def start_canopen(controller_params: dict | None = None, drive_params: dict | None = None,
+                  log_dir=None, env: dict | None = None, bus: dict | None = None,
+                  params_files: bool = True):
+    """The emulated drives (`virtual_drive`) and a controller with `hardware: canopen` on one
+    CAN bus (default CAN_BUS: udp_multicast, so run inside `private_network`), the default
+    params files of both (which set axis x; params_files=False: the register table's defaults,
+    for any axis names) plus overrides; returns (virtual_drive, controller). The controller
+    starts once the drives' heartbeat is on the bus (a loaded machine can take longer than the
+    master's 5 s for a node to boot to start a ROS node)."""
+    d = params_dir()
+    file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
+    can = CAN_BUS | (bus or {})
+    drive = NodeProcess('virtual_drive_node', file('virtual_drive'),
+                        can | (drive_params or {}), log_file(log_dir, 'virtual_drive'), env=env)
+    heard(can, 0x701, 0x77F, DRIVE_BOOT)
+    controller = NodeProcess('controller_node', file('controller'),
+                             {'hardware': 'canopen'} | can | (controller_params or {}),
+                             log_file(log_dir, 'controller'), env=env)
+    return drive, controller

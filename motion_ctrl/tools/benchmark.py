@@ -16,6 +16,12 @@ Sections (each prints a small table; paste the output into the README with the m
            reader in a third process, as the plant receives it).
 * lockstep — sim seconds per wall second of the deterministic lockstep simulation, one axis:
            plant and controller (topics) and the controller alone (sim).
+* canopen — `hardware: canopen` against `virtual_drive` in another process on udp_multicast (in
+           a private network namespace: the benchmark runs itself again inside one), one axis
+           and two on one bus, each at the highest rate 1 Mbit/s carries: the bus load, SYNC ->
+           TPDO (the drive's answer) and SYNC -> RPDO (the loop's delay) p50 / p99, the SYNC
+           period's p99 / max and the cycles whose samples had not all come, from the
+           controller's /diagnostics; CPU of both.
 
 Speed is measured here, never asserted in a test.
 """
@@ -291,10 +297,85 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 't
     }
 
 
+def bench_canopen(n_axes: int, seconds: float = 5.0) -> dict:
+    """`hardware: canopen` against `virtual_drive` (processes.start_canopen, inside
+    private_network) at the highest rate 1 Mbit/s carries for `n_axes` drives (node ids 1, 2,
+    ...; one axis: its load encoder a CiA 406 node, as the headline; two: each drive's 60E4h)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    import msg_defs as md
+    from motion_ctrl.canopen import busload
+    from motion_ctrl.canopen.objects import cycle_frames
+    from motion_ctrl.ros.processes import CAN_BUS, start_canopen
+
+    axes = ['x'] if n_axes == 1 else [f'a{i}' for i in range(n_axes)]
+    encoders = [5] if n_axes == 1 else [0] * n_axes
+    frames = cycle_frames(encoders)
+    rate = busload.max_rate(CAN_BUS['can_bitrate'], frames)
+    ids = {f'{a}.can_node_id': i + 1 for i, a in enumerate(axes)} | {
+        f'{a}.load_encoder_node_id': e for a, e in zip(axes, encoders)}
+    axes_param = '[' + ','.join(axes) + ']'
+    drive, controller = start_canopen({'axes': axes_param, 'servo_rate': rate} | ids,
+                                      {'axes': axes_param} | ids, params_files=False)
+    node = Node('bench_observer')
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    diags: list[dict] = []
+
+    def on_diagnostics(msg):
+        for st in msg.status:
+            if st.name.endswith('servo loop'):
+                d = {kv.key: float(kv.value) for kv in st.values}
+                if 'can_cycles' in d:
+                    diags.append(d | {'received': time.monotonic()})
+
+    def spin(seconds, until=lambda: False):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            executor.spin_once(timeout_sec=0.05)
+
+    node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
+    try:
+        spin(40.0, until=lambda: len(diags) >= 2)
+        if len(diags) < 2:
+            return {'error': 'nodes did not come up', 'rate': rate}
+        diags.clear()
+        pids = {controller.proc.pid, controller.servo_pid(), drive.proc.pid, drive.servo_pid()}
+        cpu0, t0 = sum(_cpu_seconds(p) for p in pids), time.monotonic()
+        spin(seconds + 1.0, until=lambda: len(diags) >= seconds + 1)
+        cpu1, t1 = sum(_cpu_seconds(p) for p in pids), time.monotonic()
+    finally:
+        node.destroy_node()
+        executor.shutdown()
+        for n in (controller, drive):
+            n.stop()
+    if len(diags) < 2:
+        return {'error': 'no diagnostics', 'rate': rate}
+    loops = diags[1:]            # each a window of one second
+
+    def f(k):
+        return statistics.median(d[k] for d in loops if k in d)
+    cycles = diags[-1]['can_cycles'] - diags[0]['can_cycles']
+    missed = diags[-1]['can_missed_cycles'] - diags[0]['can_missed_cycles']
+    return {
+        'rate': rate, 'frames': frames, 'load_pct': f('can_bus_load_pct'),
+        # (the loop counts its time in SYNCs: the wall clock says how many went out)
+        'achieved_hz': cycles / (diags[-1]['received'] - diags[0]['received']),
+        'tpdo_p50_us': f('can_sync_to_tpdo_p50_us'), 'tpdo_p99_us': f('can_sync_to_tpdo_p99_us'),
+        'rpdo_p50_us': f('can_sync_to_rpdo_p50_us'), 'rpdo_p99_us': f('can_sync_to_rpdo_p99_us'),
+        'interval_p99_us': f('can_sync_interval_p99_us'),
+        'interval_max_us': max(d.get('can_sync_interval_max_us', 0.0) for d in loops),
+        'missed_pct': 100 * missed / cycles if cycles else float('nan'),
+        'cpu_pct': 100 * (cpu1 - cpu0) / (t1 - t0),
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description='Measure motion_ctrl servo-loop performance.')
-    ap.add_argument('--sections', default='core,floor,dds,lockstep',
-                    help='comma-separated subset of core,floor,dds,lockstep')
+    ap.add_argument('--sections', default='core,floor,dds,lockstep,canopen',
+                    help='comma-separated subset of core,floor,dds,lockstep,canopen')
     ap.add_argument('--seconds', type=float, default=5.0, help='per DDS measurement')
     ap.add_argument('--rates', default='1000,2000', help='servo rates of the dds section [Hz]')
     ap.add_argument('--axes', default='1,6,64,256', help='axis counts of the dds section')
@@ -304,6 +385,12 @@ def main(argv=None) -> int:
                     help='dds: every axis jogs while the rate is measured (default: at rest)')
     a = ap.parse_args(argv)
     sections = a.sections.split(',')
+    from motion_ctrl.ros.processes import PRIVATE_NET, private_network
+    if 'canopen' in sections and not os.environ.get(PRIVATE_NET):
+        # (udp_multicast stays inside a network namespace of its own: run there, all of it)
+        args = sys.argv[1:] if argv is None else list(argv)
+        command = private_network([sys.executable, '-m', 'motion_ctrl.tools.benchmark', *args])
+        os.execvp(command[0], command)
     print(f'motion_ctrl benchmark — {platform.processor() or platform.machine()}, '
           f'{os.cpu_count()} CPUs, Python {platform.python_version()}, {platform.system()} '
           f'{platform.release()}')
@@ -321,7 +408,7 @@ def main(argv=None) -> int:
         for name, best, med, speed in bench_harness():
             x = '' if math.isnan(speed) else f'{speed:.0f}'
             print(f'| {name} | {best:.1f} | {med:.1f} | {x} |')
-    ros = [s for s in sections if s in ('floor', 'dds', 'lockstep')]
+    ros = [s for s in sections if s in ('floor', 'dds', 'lockstep', 'canopen')]
     if ros:
         from motion_ctrl.ros import ros_env
         ros_env.private_domain()
@@ -372,6 +459,22 @@ def main(argv=None) -> int:
             for hw in hardwares:
                 speed = bench_lockstep(hw)
                 print(f'{hw}: sim seconds per wall second: {speed:.2f}', flush=True)
+    if 'canopen' in sections:
+        print('\n## canopen (controller + virtual_drive, udp_multicast in a private network '
+              'namespace, 1 Mbit/s)\n')
+        print('| axes | servo rate [Hz] (bus load) | achieved [Hz] | SYNC → TPDO p50 / p99 [µs] '
+              '| SYNC → RPDO p50 / p99 [µs] | SYNC period p99 / max [µs] | cycles missing a '
+              'sample | CPU both nodes |\n|---:|---|---:|---|---|---|---:|---:|')
+        for n in (1, 2):
+            r = bench_canopen(n, a.seconds)
+            if 'error' in r:
+                print(f'| {n} | {r["rate"]:.0f} | {r["error"]} | | | | | |')
+                continue
+            print(f'| {n} | {r["rate"]:.0f} ({r["load_pct"]:.0f} %) | {r["achieved_hz"]:.0f} | '
+                  f'{r["tpdo_p50_us"]:.0f} / {r["tpdo_p99_us"]:.0f} | {r["rpdo_p50_us"]:.0f} / '
+                  f'{r["rpdo_p99_us"]:.0f} | {r["interval_p99_us"]:.0f} / '
+                  f'{r["interval_max_us"]:.0f} | {r["missed_pct"]:.2f} % | '
+                  f'{r["cpu_pct"]:.0f} % |')
     if ros:
         rclpy.try_shutdown()
     return 0

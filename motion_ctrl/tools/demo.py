@@ -6,11 +6,18 @@ with `--hardware sim` the controller alone with the slide simulated inside its l
 prints the true slide error (from plant_states) in linear counts and the time to MOTION_DONE,
 and stops both nodes with SIGINT. The moves are recorded into a rosbag2 (MCAP) bag and drawn
 by the report tool next to it (out/demo-<time>/).
+
+`--hardware canopen`: the same moves through a CiA 402 drive on a CAN bus, emulated by the
+`virtual_drive` node (the slide behind a CiA 402 object dictionary, its linear encoder a CiA 406
+node), the controller its CANopen master at the highest servo rate a 1 Mbit/s bus carries. The
+bus is python-can's udp_multicast, in a network namespace of its own (processes.private_network:
+the demo runs itself again inside it), so no frame leaves the machine.
 """
 from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import pathlib
 import sys
 
@@ -23,16 +30,31 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--feedback', default=None, choices=('motor', 'load', 'dual', 'sampled'),
                     help='override x.feedback (default: params/controller.yaml)')
-    ap.add_argument('--hardware', default='topics', choices=('topics', 'sim'),
-                    help='topics: plant node + controller (default); sim: the controller alone, '
-                         'the slide simulated in its loop')
     ap.add_argument('-o', '--out', default=None,
                     help='directory for logs, bag and plot (default out/demo-<time>)')
+    ap.add_argument('--hardware', default='topics', choices=('topics', 'sim', 'canopen'),
+                    help='topics: plant node + controller (default); sim: the controller alone, '
+                         'the slide simulated in its loop; canopen: an emulated CiA 402 drive '
+                         'and CiA 406 encoder on a CAN bus')
+    ap.add_argument('--realtime-priority', type=int, default=0,
+                    help='SCHED_FIFO priority of both nodes (realtime_priority; 0: normal)')
+    ap.add_argument('--servo-rate', type=float, default=None,
+                    help='canopen: the servo rate [Hz] (default: the most 1 Mbit/s carries)')
     args = ap.parse_args(argv)
+    from motion_ctrl.ros.processes import PRIVATE_NET, private_network
+    if args.hardware == 'canopen' and not os.environ.get(PRIVATE_NET):
+        argv = sys.argv[1:] if argv is None else list(argv)
+        command = private_network([sys.executable, '-m', 'motion_ctrl.tools.demo', *argv])
+        try:
+            os.execvp(command[0], command)
+        except OSError as e:
+            print(f'demo: cannot make a private network namespace ({" ".join(command[:3])}): '
+                  f'{e}', file=sys.stderr)
+            return 2
     domain = ros_env.private_domain()
     import rclpy
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import start_sim, start_slide
+    from motion_ctrl.ros.processes import CAN_BUS, start_canopen, start_sim, start_slide
     from motion_ctrl.tools.record import SERVO_TOPICS, Recorder
     from motion_ctrl.tools.report import ReportError, format_summary, make_report
 
@@ -40,9 +62,30 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/demo-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
     bag, png = out / 'bag', out / 'move.png'
-    what = 'plant and controller' if args.hardware == 'topics' else 'the controller (hardware sim)'
-    print(f'demo: starting {what} (ROS_DOMAIN_ID={domain}, logs in {out})')
-    nodes = (start_slide if args.hardware == 'topics' else start_sim)(overrides, log_dir=out)
+    if args.hardware == 'canopen':
+        from motion_ctrl.canopen import busload
+        from motion_ctrl.canopen.objects import cycle_frames
+        encoder = 5                                  # the slide's CiA 406 encoder node
+        frames = cycle_frames([encoder])
+        rate = args.servo_rate or busload.max_rate(CAN_BUS['can_bitrate'], frames)
+        print(f'demo: starting virtual_drive (CiA 402 drive node 1, CiA 406 encoder node '
+              f'{encoder}) and the controller on {CAN_BUS["can_interface"]} in a private network '
+              f'namespace (ROS_DOMAIN_ID={domain}, logs in {out})')
+        share = busload.load(rate, CAN_BUS['can_bitrate'], frames)
+        print(f'demo: servo rate {rate:.1f} Hz: {share * 100:.0f} % of '
+              f'{CAN_BUS["can_bitrate"] / 1e6:g} Mbit/s (SYNC + PDOs of '
+              f'{"/".join(map(str, frames))} bytes, {busload.cycle_bits(frames)} bits a cycle '
+              f'with worst-case stuffing)')
+        rt = {'realtime_priority': args.realtime_priority}
+        nodes = start_canopen(overrides | rt | {'servo_rate': rate,
+                                                'x.load_encoder_node_id': encoder},
+                              rt | {'x.load_encoder_node_id': encoder}, log_dir=out)
+    else:
+        what = ('plant and controller' if args.hardware == 'topics'
+                else 'the controller (hardware sim)')
+        print(f'demo: starting {what} (ROS_DOMAIN_ID={domain}, logs in {out})')
+        nodes = (start_slide if args.hardware == 'topics' else start_sim)(overrides,
+                                                                         log_dir=out)
     rclpy.init()
     client = SlideClient()
     recorder = None
@@ -52,7 +95,8 @@ def main(argv=None) -> int:
             print(f'demo: the nodes did not come up ({client.not_ready()}); see the logs',
                   file=sys.stderr)
             return 1
-        # (sim: no `command` / `encoders` on DDS, the slide is in the controller's loop)
+        # (sim, canopen: no `command` / `encoders` on DDS: the slide is in the controller's
+        # loop, or the servo traffic is on the CAN bus)
         topics = None if args.hardware == 'topics' else [
             t for t in SERVO_TOPICS if t not in (md.COMMAND, md.ENCODERS)]
         recorder = Recorder(bag, topics, discover_status=True).start()
