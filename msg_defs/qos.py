@@ -15,7 +15,9 @@ Status words are reliable + transient local so a late subscriber sees the curren
 with a history of STATUS_DEPTH words: a client that waits for MOTION_DONE to clear and rise
 again must get every change, and a controller that is its own clock (hardware sim, sim time)
 makes a move's changes within a millisecond of wall time; a reliable writer keeping only the
-last few would drop the older ones before a busy reader took them. So is the record of an
+last few would drop the older ones before a busy reader took them. (A late joiner gets that
+history, oldest first. The bridge's copy on the user's domain keeps the last
+ros.bridge.LATCHED_DEPTH words.) So is the record of an
 excitation run (GATHER_QOS, the last run only): a reader that joins or loses a sample late still
 gets the whole record, repaired by the reliable protocol.
 """

@@ -74,20 +74,20 @@ def interface_type(name: str):
     return found
 
 
-def latched_depth(topic: str) -> int:
-    """The history a latched topic keeps, as the node keeps it: a gather record is one run;
-    status words and the like keep msg_defs.STATUS_DEPTH, so that a reader behind gets every
-    change (MOTION_DONE cleared and raised again), not only the last."""
-    return md.GATHER_QOS.depth if topic.endswith('/gather') else md.STATUS_DEPTH
+LATCHED_DEPTH = 10           # the last changes of a latched topic (a gather record: the last)
 
 
 def outward_qos(info, topic: str = '') -> QoSProfile:
     """The node's publisher QoS for the user's side: same reliability and durability; a
-    latched topic keeps what the node keeps (latched_depth), a stream a second of samples."""
+    latched topic keeps its last LATCHED_DEPTH samples (a reader that falls behind still gets a
+    status word's MOTION_DONE cleared and raised; a gather record keeps one, it is one run), a
+    stream a second of samples."""
     latched = info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
     reliable = info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    depth = (1 if topic.endswith('/gather') else LATCHED_DEPTH) if latched else \
+        (STREAM_DEPTH if reliable else 10)
     return QoSProfile(
-        depth=latched_depth(topic) if latched else (STREAM_DEPTH if reliable else 10),
+        depth=depth,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
@@ -156,7 +156,7 @@ class _Outward:
                   or self.pub.get_subscription_count() > 0)
         if wanted and self.sub is None:
             # (a latched topic's every change: a status word's MOTION_DONE cleared and raised)
-            qos = QoSProfile(depth=self.qos.depth,
+            qos = QoSProfile(depth=LATCHED_DEPTH if self.latched else self.qos.depth,
                              reliability=self.qos.reliability, durability=self.qos.durability)
             self.sub = self.reader.create_subscription(
                 self.msg_type, self.topic, self._copy, qos, raw=self.own is None)

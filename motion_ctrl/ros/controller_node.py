@@ -180,6 +180,7 @@ class ControllerNode(ros_params.RegisterNode):
         # a few axes a tick in turn (`_refresh_status`).
         self.status_turn = 0
         self.status_due = 0.0
+        self.status_at: float | None = None       # the tick time the refresh last counted from
         self.stats = self.loop.stats
         self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
         # What drives the tick: a timer in real time; in sim time the plant's samples
@@ -538,15 +539,19 @@ class ControllerNode(ros_params.RegisterNode):
                 self.gathers.put((a, g, self.run_meta.pop(a)))    # published off the tick
         for a in tick.changed:
             self.pub_status[a].send(UInt32(data=self.axes[a].word))
-        self._refresh_status()
+        self._refresh_status(now)
         self.follow.tick(now)            # the trajectory goal, after the outputs (never waits)
         self.stats.work(time.perf_counter() - t_start)
 
-    def _refresh_status(self) -> None:
-        """Every axis's status word again every STATUS_PERIOD (of servo time), spread over the
-        ticks: a few axes a tick, in turn, instead of all of them in one."""
+    def _refresh_status(self, now: float) -> None:
+        """Every axis's status word again every STATUS_PERIOD of the tick's clock, spread over
+        the ticks: a few axes a tick, in turn, instead of all of them in one. Counted from the
+        clock, not the ticks, so that ticks skipped under load do not stretch the period."""
         names = self.axis_names
-        self.status_due += len(names) * self.period / STATUS_PERIOD
+        elapsed = self.period if self.status_at is None else min(max(now - self.status_at, 0.0),
+                                                                  STATUS_PERIOD)
+        self.status_at = now
+        self.status_due += len(names) * elapsed / STATUS_PERIOD
         while self.status_due >= 1.0:
             self.status_due -= 1.0
             a = names[self.status_turn]
