@@ -2,7 +2,9 @@
 with `hardware: sim`: `plant_states` (ground truth: `<axis>_motor`, `<axis>_load` positions [m]
 and velocities), `amplifier_states` (effort = the output each amplifier applied [V]) and
 `<axis>/amplifier_fault` (std_msgs/Bool, latched: true while the command watchdog holds the
-output at 0 V), the last on every change and at least every FAULT_PERIOD, with a log line on a
+output at 0 V), the last on every change (latched: a late reader gets the current value at
+once; a periodic copy of every axis's fault would cost the loop a publish per axis every
+period, the largest part of a many-axis tick after the status words), with a log line on a
 trip and on the recovery (not at start-up: the first sample says how the amplifiers start)."""
 from __future__ import annotations
 
@@ -10,8 +12,6 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 import msg_defs as md
-
-FAULT_PERIOD = 0.1       # s: amplifier_fault is re-published at least at 10 Hz (as status words)
 
 
 class PlantStates:
@@ -28,20 +28,16 @@ class PlantStates:
         self.pub_fault = {a: node.stream(Bool, md.amplifier_fault_topic(a), md.STATUS_QOS)
                           for a in self.axes}
         self.fault: list[bool] | None = None      # per axis, as last published
-        self.fault_turn = 0                       # the next to publish again (in turn)
-        self.fault_due = 0.0
-        self.last_time: float | None = None
 
     def publish(self, stamp, slides) -> None:
         """One sample of every slide at `stamp` (a ROS time message). `slides` has `truth()`
         (positions and velocities, motor then load per axis), `applied()` (volts per axis) and
         `tripped()` (per axis), asked for only what somebody reads. The faults: each on a
-        change, and each again every FAULT_PERIOD, a few axes a sample in turn."""
+        change."""
         if self.pub_truth.wanted():
             self.pub_truth.publish(stamp, self.names, *slides.truth())
         if self.pub_amp.wanted():
             self.pub_amp.publish(stamp, self.axes, effort=slides.applied())
-        now = stamp.sec + stamp.nanosec * 1e-9
         tripped = slides.tripped()
         last = self.fault
         if last is None:
@@ -52,14 +48,6 @@ class PlantStates:
                 if trip != was:
                     self._changed(a, trip)
         self.fault = tripped
-        dt = 0.0 if self.last_time is None else min(max(now - self.last_time, 0.0), FAULT_PERIOD)
-        self.last_time = now
-        self.fault_due += len(self.axes) * dt / FAULT_PERIOD
-        while self.fault_due >= 1.0:
-            self.fault_due -= 1.0
-            i = self.fault_turn
-            self.fault_turn = (i + 1) % len(self.axes)
-            self.pub_fault[self.axes[i]].send(Bool(data=bool(tripped[i])))
 
     def _changed(self, a: str, trip: bool) -> None:
         if trip:

@@ -248,7 +248,9 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 't
 
     node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
     try:
-        spin(30.0, until=lambda: len(diags) >= 2)        # up, and a second of loop behind it
+        # up, and a second of loop behind it (each axis's services take ~0.1 s to make: 35 s
+        # for 256 axes here)
+        spin(30.0 + 0.2 * n_axes, until=lambda: len(diags) >= 2)
         if len(diags) < 2:
             return {'error': 'nodes did not come up'}
         if moving:
