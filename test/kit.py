@@ -13,13 +13,28 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M, MOTOR_COUNTS_PER_M
+from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M, MOTOR_COUNTS_PER_M, axis_defaults
 
 __all__ = ['INCH', 'COUNT', 'MOTOR_COUNT', 'LOAD_COUNTS_PER_M', 'MOTOR_COUNTS_PER_M', 'Slide',
-           'running_slide', 'spin_for']
+           'running_slide', 'spin_for', 'DUAL_REGISTERS', 'enabled_xy']
 
 COUNT = 1 / LOAD_COUNTS_PER_M          # one linear (slide encoder) count [m]: 2.54 um
 MOTOR_COUNT = 1 / MOTOR_COUNTS_PER_M   # one motor encoder count, in slide travel [m]
+
+
+# The default axis on both encoders, with the slide's Coulomb friction fed forward.
+DUAL_REGISTERS = axis_defaults() | {'feedback': 'dual', 'friction_ff': 0.24}
+
+
+def enabled_xy():
+    """An in-process harness (no ROS) of two such axes, x and y, enabled and at rest."""
+    from motion_ctrl.sim.harness import Harness
+    h = Harness(DUAL_REGISTERS, axes=('x', 'y'), record=False)
+    h.run(0.05)
+    for a in h.axes.values():
+        assert a.enable(True)[0]
+    h.run(0.2)
+    return h
 
 
 def spin_for(client, seconds: float) -> None:

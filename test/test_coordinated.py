@@ -7,15 +7,17 @@ import math
 import numpy as np
 import pytest
 
+import kit
+
 from motion_ctrl.core import trajectory as tj
 
 from motion_ctrl.tools import draw
 from motion_ctrl.sim.harness import Harness
-from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, axis_defaults
+from motion_ctrl.core.registers import LOAD_COUNTS_PER_M
 from msg_defs.status import Status as S
 
 # The example's registers (motion_ctrl.tools.draw): friction feedforward = the slide's friction.
-REGISTERS = axis_defaults() | {'feedback': 'dual', 'friction_ff': 0.24}
+REGISTERS = kit.DUAL_REGISTERS
 R, V = 0.010, 0.020
 
 
@@ -29,12 +31,7 @@ def _spec(points: tj.Points, names=('x', 'y')) -> dict:
 
 @pytest.fixture
 def xy():
-    h = Harness(REGISTERS, axes=('x', 'y'), record=False)
-    h.run(0.05)
-    for a in h.axes.values():
-        assert a.enable(True)[0]
-    h.run(0.2)
-    return h
+    return kit.enabled_xy()
 
 
 def _start(h) -> dict:

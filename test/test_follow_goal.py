@@ -9,23 +9,19 @@ import re
 import numpy as np
 import pytest
 
+import kit
+
 from motion_ctrl.core import follow_goal as fg
-from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, axis_defaults
-from motion_ctrl.sim.harness import Harness
+from motion_ctrl.core.registers import LOAD_COUNTS_PER_M
 from msg_defs.status import Status as S
 
-REGISTERS = axis_defaults() | {'feedback': 'dual', 'friction_ff': 0.24}
+REGISTERS = kit.DUAL_REGISTERS
 COUNT = 1 / LOAD_COUNTS_PER_M
 
 
 @pytest.fixture
 def xy():
-    h = Harness(REGISTERS, axes=('x', 'y'), record=False)
-    h.run(0.05)
-    for a in h.axes.values():
-        assert a.enable(True)[0]
-    h.run(0.2)
-    return h
+    return kit.enabled_xy()
 
 
 class Driver:
