@@ -196,6 +196,47 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
+def _value(text: str):
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+class _Observer:
+    """The benchmark's own node: it reads only /diagnostics (a third process taking 1 kHz
+    streams would load the cores it shares with the nodes measured) and keeps the servo loop's
+    entries that `keep` accepts, each with the time it was received."""
+
+    def __init__(self, keep):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+
+        import msg_defs as md
+        self.node = Node('bench_observer')
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self.diags: list[dict] = []
+
+        def on_diagnostics(msg):
+            for st in msg.status:
+                if st.name.endswith('servo loop'):
+                    d = {kv.key: _value(kv.value) for kv in st.values}
+                    if keep(d):
+                        self.diags.append(d | {'received': time.monotonic()})
+        self.node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
+
+    def spin(self, seconds: float, until=lambda: False) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.executor.shutdown()
+
+
 def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 'topics',
               moving: bool = False) -> dict:
     """Loop figures in real time. The observer (this process) reads only /diagnostics while the
@@ -203,9 +244,6 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 't
     with plant and controller. The command transport (topics) is measured after, in a window of
     its own. `moving`: every axis jogs (at 20 mm/s, half of them negative) while the rate is
     measured, else they rest."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
     import msg_defs as md
@@ -225,28 +263,14 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 't
             {'axes': axes_param, 'publish_rate': float(rate), 'substep_rate': substep},
             params_files=False)
     controller = nodes[-1]
-    node = Node('bench_observer')
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    diags, transport = [], []
-
-    def on_diagnostics(msg):
-        for st in msg.status:
-            if st.name.endswith('servo loop'):
-                d = {kv.key: kv.value for kv in st.values}
-                if 'rate_hz' in d:
-                    diags.append(d)
+    obs = _Observer(lambda d: 'rate_hz' in d)
+    node, diags, spin = obs.node, obs.diags, obs.spin
+    transport: list[float] = []
 
     def on_command(msg):
         now = node.get_clock().now().nanoseconds * 1e-9
         transport.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
 
-    def spin(seconds, until=lambda: False):
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and not until():
-            executor.spin_once(timeout_sec=0.05)
-
-    node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
     try:
         # up, and a second of loop behind it (each axis's services take ~0.1 s to make: 35 s
         # for 256 axes here)
@@ -274,8 +298,7 @@ def bench_dds(rate: float, n_axes: int, seconds: float = 5.0, hardware: str = 't
             transport.clear()
             spin(2.0)
     finally:
-        node.destroy_node()
-        executor.shutdown()
+        obs.close()
         for n in reversed(nodes):
             n.stop()
     if not loops:
@@ -303,11 +326,6 @@ def bench_canopen(n_axes: int, seconds: float = 5.0) -> dict:
     """`hardware: canopen` against `virtual_drive` (processes.start_canopen, inside
     private_network) at the highest rate 1 Mbit/s carries for `n_axes` drives (node ids 1, 2,
     ...; one axis: its load encoder a CiA 406 node, as the headline; two: each drive's 60E4h)."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-
-    import msg_defs as md
     from motion_ctrl.canopen import busload
     from motion_ctrl.canopen.objects import cycle_frames
     from motion_ctrl.ros.processes import CAN_BUS, start_canopen
@@ -321,24 +339,8 @@ def bench_canopen(n_axes: int, seconds: float = 5.0) -> dict:
     axes_param = '[' + ','.join(axes) + ']'
     drive, controller = start_canopen({'axes': axes_param, 'servo_rate': rate} | ids,
                                       {'axes': axes_param} | ids, params_files=False)
-    node = Node('bench_observer')
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    diags: list[dict] = []
-
-    def on_diagnostics(msg):
-        for st in msg.status:
-            if st.name.endswith('servo loop'):
-                d = {kv.key: float(kv.value) for kv in st.values}
-                if 'can_cycles' in d:
-                    diags.append(d | {'received': time.monotonic()})
-
-    def spin(seconds, until=lambda: False):
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and not until():
-            executor.spin_once(timeout_sec=0.05)
-
-    node.create_subscription(DiagnosticArray, md.DIAGNOSTICS, on_diagnostics, 10)
+    obs = _Observer(lambda d: 'can_cycles' in d)
+    diags, spin = obs.diags, obs.spin
     try:
         spin(40.0, until=lambda: len(diags) >= 2)
         if len(diags) < 2:
@@ -349,8 +351,7 @@ def bench_canopen(n_axes: int, seconds: float = 5.0) -> dict:
         spin(seconds + 1.0, until=lambda: len(diags) >= seconds + 1)
         cpu1, t1 = sum(_cpu_seconds(p) for p in pids), time.monotonic()
     finally:
-        node.destroy_node()
-        executor.shutdown()
+        obs.close()
         for n in (controller, drive):
             n.stop()
     if len(diags) < 2:
