@@ -58,7 +58,7 @@ from _pytest.mark.expression import Expression  # noqa: E402
 # and test_core_without_ros imports each of them in an interpreter without ROS.
 CORE_FILES = frozenset({
     'test_autotune.py', 'test_axis_rules.py', 'test_backlash.py', 'test_canopen.py',
-    'test_coordinated.py',
+    'test_coordinated.py', 'test_docs.py',
     'test_core_without_ros.py', 'test_deadband.py', 'test_excitation.py', 'test_feedback_sync.py',
     'test_follow_goal.py', 'test_gather.py', 'test_hardware.py', 'test_identify.py',
     'test_iso230.py', 'test_motion_events.py', 'test_notch.py', 'test_plant.py',

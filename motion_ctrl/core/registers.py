@@ -637,6 +637,11 @@ def params_yaml(node: str, globals_, axis_table, axes=('x',)) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _md_cell(text: str) -> str:
+    """Text for a Markdown table cell: `|` would end the cell and `<axis>` read as an HTML tag."""
+    return text.replace('|', '\\|').replace('<', '\\<')
+
+
 def markdown_table(table) -> str:
     rows = ['| register | unit | default | range | vendor | meaning |',
             '|---|---|---|---|---|---|']
@@ -650,8 +655,8 @@ def markdown_table(table) -> str:
         else:
             rng = ''
         default = r.default if not isinstance(r.default, float) else f'{r.default:.6g}'
-        rows.append(f'| `{r.name}` | {r.unit} | {default} | {rng} | {r.vendor} | '
-                    f'{r.description} |')
+        rows.append(f'| `{r.name}` | {r.unit} | {default} | {rng} | {_md_cell(r.vendor)} | '
+                    f'{_md_cell(r.description)} |')
     return '\n'.join(rows) + '\n'
 
 
@@ -682,6 +687,11 @@ def doc_block(text: str, key: str) -> str:
     """The generated text between `<!-- key -->` and `<!-- /key -->` in a page's text."""
     start = text.index(f'<!-- {key} -->\n') + len(f'<!-- {key} -->\n')
     return text[start:text.index(f'<!-- /{key} -->')]
+
+
+def stale_blocks(text: str, blocks) -> list[str]:
+    """The keys of a page's generated blocks that differ from what the table generates now."""
+    return [key for key, make in blocks.items() if doc_block(text, key) != make()]
 
 
 def update_doc(text: str, blocks) -> str:
