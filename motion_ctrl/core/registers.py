@@ -585,7 +585,7 @@ def plant_consistency(v: dict) -> list[str]:
     return reasons
 
 
-# -- generated artefacts: params/*.yaml and the documentation's tables ------------------------------
+# -- generated artefacts: params/*.yaml and the documentation's tables -----------------------------
 def yaml_float(value) -> str:
     """A double that every YAML reader types as one: YAML 1.1 wants a '.' (1e-06 -> 1.0e-06)."""
     text = repr(float(value))

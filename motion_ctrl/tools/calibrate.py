@@ -53,7 +53,7 @@ class AxisUnderTest:
         # joint_states arrive at the servo rate: taken raw (no Python message per sample, the
         # tool must not load the machine whose loop it measures) and only while a reading is
         # being taken. Subscribed once, now: a reader joining later stalls the controller's
-        # publishers while Fast DDS health-checks it (README, Notes).
+        # publishers while Fast DDS health-checks it (doc/design_notes.md).
         self._raw: list[bytes] = []
         self._collect = False
         self._type = JointState
@@ -384,7 +384,7 @@ def axis_session(args, tool: str, services: bool = False, truth: bool = False):
     out.mkdir(parents=True, exist_ok=True)
     # The nodes first, then this participant (as the demo): a client that was there before
     # the nodes started saw the first move end in FOLLOWING_ERROR_FATAL, 3 runs of 3 (not
-    # understood; README Notes).
+    # understood; doc/design_notes.md).
     nodes = _spawn(args, out) if args.spawn else ()
     if args.lockstep:
         from motion_ctrl.ros.lockstep import client_context
