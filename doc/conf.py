@@ -20,5 +20,5 @@ nitpicky = True
 
 html_theme = 'alabaster'
 html_theme_options = {'page_width': '1200px', 'sidebar_width': '260px'}
-html_title = 'motion_ctrl'
+html_title = 'motion_ctrl documentation'
 html_show_sourcelink = False
