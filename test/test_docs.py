@@ -101,6 +101,8 @@ def test_nothing_a_user_reads_points_outside_the_repository(page):
     text = page.read_text()
     for outside in ('../shared', 'shared/', 'SPEC.md', 'REFERENCE.md', 'seeds/'):
         assert outside not in text, f'{page.name} names {outside}'
+    if page.name != 'README.md':        # the site stands alone: no "README, Notes" left over
+        assert 'README' not in text, f'{page.name} sends its reader to README'
     for target in re.findall(r'\]\(([^)\s]+)\)', text):
         if re.match(r'[a-z]+://', target) or target.startswith('#'):
             continue
