@@ -674,7 +674,9 @@ GENERATED = {
 DOC_BLOCKS = {
     'doc/parameters.md': {
         'registers:controller': lambda: markdown_table(AXIS_REGISTERS),
+        'registers:controller_globals': lambda: markdown_table(CONTROLLER_GLOBALS),
         'registers:plant': lambda: markdown_table(PLANT_PARAMETERS),
+        'registers:plant_globals': lambda: markdown_table(PLANT_GLOBALS),
     },
     'doc/canopen.md': {
         'registers:canopen': lambda: markdown_table(CAN_GLOBALS + CANOPEN_AXIS),
