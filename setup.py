@@ -44,7 +44,7 @@ EXECUTABLES = {
 # The servo tick and the plant's physics: plain, typed Python that mypyc compiles to C
 # extension modules when the package is built (a wheel by scripts/bootstrap, and in place for
 # the source tree), so that an axis' tick and a simulated one run several times faster
-# (README, Performance). Without mypyc (MOTION_CTRL_COMPILE=0, or a build with no mypy) the
+# (doc/performance.md). Without mypyc (MOTION_CTRL_COMPILE=0, or a build with no mypy) the
 # same modules run as Python, with the same results (test/test_compiled.py).
 COMPILED = [
     'motion_ctrl/core/config.py', 'motion_ctrl/core/notch.py', 'motion_ctrl/core/deadband.py',

@@ -1,9 +1,9 @@
 """The wire contract of motion_ctrl, in one place: topic names, QoS profiles, status bits and the
 helpers that build and read the standard messages both nodes use (no custom .msg types).
 
-Everything here is the outside of the product as SPEC.md fixes it. Topic names are relative so a
-namespace works. Encoder counts travel as float64 in JointState.position (integers carried
-exactly up to 2**53).
+Everything here is the outside of the product as doc/interface.md fixes it. Topic names are
+relative so a namespace works. Encoder counts travel as float64 in JointState.position
+(integers carried exactly up to 2**53).
 """
 from msg_defs.status import Status
 from msg_defs.topics import (

@@ -1,7 +1,7 @@
-"""Read and build the control_msgs messages of the trajectory action (SPEC "Trajectory action and
-state"): a FollowJointTrajectory goal as plain data, its feedback, JointTrajectoryControllerState
-and the QueryTrajectoryState answer. control_msgs is imported here only (scripts/bootstrap
-builds it into .venv; a ROS install has its own).
+"""Read and build the control_msgs messages of the trajectory action (doc/interface.md, "The
+trajectory action and state"): a FollowJointTrajectory goal as plain data, its feedback,
+JointTrajectoryControllerState and the QueryTrajectoryState answer. control_msgs is imported here
+only (scripts/bootstrap builds it into .venv; a ROS install has its own).
 
 The values are the core's (motion_ctrl.core.follow_goal): per axis (position, velocity,
 acceleration) triples, SI units.

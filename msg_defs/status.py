@@ -1,6 +1,7 @@
 """Axis status word bits (published as std_msgs/UInt32 on ``<axis>/status``).
 
-The bit positions are part of the wire contract (SPEC.md, "Status word bits") and never change.
+The bit positions are part of the wire contract (doc/interface.md, "Status word bits") and never
+change.
 Semantics follow RSI RMP / Delta Tau PMAC.
 """
 

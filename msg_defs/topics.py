@@ -1,4 +1,5 @@
-"""Topic and service names (SPEC.md "Topics" and "Services"). Relative names: a namespace works."""
+"""Topic and service names (doc/interface.md, "Topics", "Services"). Relative names: a namespace
+works."""
 
 TARGET_POSITION = 'target_position'    # sensor_msgs/JointState -> controller, position [m]
 TARGET_VELOCITY = 'target_velocity'    # sensor_msgs/JointState -> controller, velocity [m/s]

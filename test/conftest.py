@@ -49,8 +49,8 @@ from _pytest.mark.expression import Expression  # noqa: E402
 
 
 # --- The core marker: tests that need no ROS -----------------------------------------------------
-# The test files of the ROS-free layers (motion_ctrl/core, sim, analysis; README "How it is
-# built"): in-process, no rclpy or message package, no process started. Every test in them is
+# The test files of the ROS-free layers (motion_ctrl/core, sim, analysis; doc/architecture.md,
+# "Layers"): in-process, no rclpy or message package, no process started. Every test in them is
 # marked `core` (`scripts/test -m core`), except those marked `core_slow` (ROS-free as well, but
 # a whole simulated test plan each, seconds apiece: they run with the full suite, or with
 # `-m "core or core_slow"`). The list is the one place that says which file is which; while a
@@ -58,7 +58,7 @@ from _pytest.mark.expression import Expression  # noqa: E402
 # and test_core_without_ros imports each of them in an interpreter without ROS.
 CORE_FILES = frozenset({
     'test_autotune.py', 'test_axis_rules.py', 'test_backlash.py', 'test_canopen.py',
-    'test_coordinated.py',
+    'test_coordinated.py', 'test_docs.py',
     'test_core_without_ros.py', 'test_deadband.py', 'test_excitation.py', 'test_feedback_sync.py',
     'test_follow_goal.py', 'test_gather.py', 'test_hardware.py', 'test_identify.py',
     'test_iso230.py', 'test_motion_events.py', 'test_notch.py', 'test_plant.py',

@@ -156,7 +156,7 @@ def test_memory_flat_over_10000_status_word_changes():
     assert grown < 50_000, grown
 
 
-# The README's precedence table, every pair: (state in progress, command) -> accepted?
+# The precedence table of doc/interface.md, every pair: (state in progress, command) -> accepted?
 _COMMANDS = {
     'move': lambda a: a.move_to(0.0),
     'jog': lambda a: a.jog(-0.05),

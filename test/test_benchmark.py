@@ -1,4 +1,4 @@
-"""The benchmark command works as the README shows it (issue 6): it prints its tables with
+"""The benchmark command works as doc/performance.md shows it (issue 6): it prints its tables with
 numbers in them. Speeds are not asserted (they are the machine's), only that they were measured.
 """
 import math

@@ -1,8 +1,8 @@
 """Lint and type checks as tests, as a ROS package runs ament_flake8 and ament_mypy: ruff
-(ruff.toml) over the package, msg_defs, the tests, the launch file and setup.py; mypy (setup.cfg
-[mypy]) over the package, msg_defs, the tests and setup.py (not launch/: mypy would take that
-directory for the ROS `launch` package). scripts/ holds shell scripts only. Each fails with the
-tool's own report."""
+(ruff.toml) over the package, msg_defs, the tests, the launch file, setup.py and doc/conf.py;
+mypy (setup.cfg [mypy]) over the package, msg_defs, the tests and setup.py (not launch/: mypy
+would take that directory for the ROS `launch` package). scripts/ holds shell scripts only.
+Each fails with the tool's own report."""
 import subprocess
 import sys
 
@@ -15,7 +15,7 @@ def _run(*args):
 
 
 def test_ruff_clean():
-    r = _run('ruff', 'check', 'motion_ctrl', 'msg_defs', 'test', 'launch', 'setup.py')
+    r = _run('ruff', 'check', 'motion_ctrl', 'msg_defs', 'test', 'launch', 'setup.py', 'doc')
     assert r.returncode == 0, r.stdout + r.stderr
 
 

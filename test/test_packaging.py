@@ -13,8 +13,8 @@ import pytest
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PACKAGE = 'motion_ctrl'
 
-# The contract: `ros2 run motion_ctrl NAME` for each of these names (README); which module
-# serves each is setup.py's business, checked below to exist.
+# The contract: `ros2 run motion_ctrl NAME` for each of these names (README's executables);
+# which module serves each is setup.py's business, checked below to exist.
 EXPECTED_NAMES = {'controller', 'plant', 'notch', 'demo', 'scenarios', 'tune', 'benchmark',
                   'record', 'report', 'soak', 'draw', 'calibrate', 'identify', 'autotune',
                   'virtual_drive'}

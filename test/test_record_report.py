@@ -412,7 +412,7 @@ def test_recorder_api_in_process(slide, tmp_path):
         # once a reader is seen: a move started at a matched publisher was not recorded)
         assert all(rec.counts.get(t, 0) > 0 for t in SERVO_TOPICS), rec.counts
         # Until every servo stream has brought 20 messages: a stream can pause for 0.33 s while
-        # a participant joins (README, Notes); the bag's contents are under test here.
+        # a participant joins (doc/design_notes.md); the bag's contents are under test here.
         slide.spin_until(lambda: all(rec.counts.get(t, 0) > 20 for t in SERVO_TOPICS), 10.0)
     counts, stamps, status = read_bag(bag)
     assert counts == rec.counts

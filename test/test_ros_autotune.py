@@ -46,16 +46,16 @@ def test_autotune_stiff_verified_with_the_demo_moves(node_env, tmp_path):
 
 
 # Issue 14, must-show 2 where the resonance limits the loop. The screw ten times softer
-# alone (resonance 77 Hz) is not such a plant: there autotune rightly proposes no notch (README;
-# test_autotune). Under a slide four times as heavy (20 kg, slide / motor 0.65; its friction
-# four times too, so that it is held against the nut as firmly as the default slide) the
-# resonance (46 Hz) does. Lockstep runs of 2026-11-24: identify 46.0-47.6 Hz in eight runs of
+# alone (resonance 77 Hz) is not such a plant: there autotune rightly proposes no notch
+# (doc/autotune.md; test_autotune). Under a slide four times as heavy (20 kg, slide / motor 0.65;
+# its friction four times too, so that it is held against the nut as firmly as the default slide)
+# the resonance (46 Hz) does. Lockstep runs of 2026-11-24: identify 46.0-47.6 Hz in eight runs of
 # nine (the plant's 45.8; the ninth went wrong, below); the shipped gains 0.5-0.7 dB and a
 # negative phase margin on the measured loop, and one of their moves never came to rest
 # (output p-p 0.14 V); the proposal a notch at 46.0-49.0 Hz, 1.6-7.2 × the ki without one,
 # 8.2-13.4 dB / 45.5-52.1°, every move at rest, output p-p 0.000-0.001 V, final error 0
 # (settle 0.01-5.1 s, overshoot 0-101 counts: identify's kaff is -41 % to +12 % on this slide,
-# and the last count is crept in against the slide's stiction; README).
+# and the last count is crept in against the slide's stiction; doc/autotune.md).
 HEAVY_SLIDE = ['--plant', 'x.screw_stiffness:=1.0e6', '--plant', 'x.slide_mass:=20.0',
                '--plant', 'x.slide_coulomb:=40.0', '--plant', 'x.slide_stiction:=42.0']
 
@@ -63,11 +63,11 @@ HEAVY_SLIDE = ['--plant', 'x.screw_stiffness:=1.0e6', '--plant', 'x.slide_mass:=
 def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     """`autotune --spawn --lockstep --apply` on the plant of `plant` (launch arguments): the run
     and the registers it proposed. An identify that measured the resonance more than 5 % off
-    `resonance_hz` makes the test an XFAIL with the number: identify's known failure (README,
-    test_ros_identify), its first stepped sine gone wrong and the fine one searching around a
-    wrong resonance (one run of six on the heavy slide, 2026-11-24: 178 Hz, damping 0.93).
-    Not autotune's to judge. Each move is watched 0.5 s at rest (`--rest`; the resonance, not
-    the rest, is these tests' question: the suite's time)."""
+    `resonance_hz` makes the test an XFAIL with the number: identify's known failure
+    (doc/autotune.md, test_ros_identify), its first stepped sine gone wrong and the fine one
+    searching around a wrong resonance (one run of six on the heavy slide, 2026-11-24: 178 Hz,
+    damping 0.93). Not autotune's to judge. Each move is watched 0.5 s at rest (`--rest`; the
+    resonance, not the rest, is these tests' question: the suite's time)."""
     run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.autotune', '--spawn',
                           '--lockstep', '--apply', '--rest', '0.5', '-o', str(tmp_path)] + plant,
                          env=node_env, capture_output=True, text=True, timeout=290)

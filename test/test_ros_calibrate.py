@@ -4,7 +4,7 @@ user runs it (a process of its own): its ISO 230-2 test before and, with --apply
 tables, the figures a user reads in its report; then, with the tables left in the controller,
 the headline move judged on the simulation's ground truth, which the tool never reads. A short
 travel (0.5 .. 2 in, 5 targets, the ISO minimum) keeps each run near a minute. In real time on
-this VM the runs are now and then lost to the machine's stalls (README "Calibrating an
+this VM the runs are now and then lost to the machine's stalls (doc/calibration.md, "Calibrating an
 axis")."""
 import re
 import subprocess
@@ -16,7 +16,7 @@ from kit import COUNT, INCH
 
 ARGS = ['--apply', '--keep-motor', '--range', '0.0127,0.0508', '--targets', '5']
 # The axis as identify measures it: the friction feedforward is the slide's Coulomb friction in
-# volts (0.24 V, README "Tuning an axis"). On the shipped gains alone the motor loop ends a move
+# volts (0.24 V, doc/identify.md). On the shipped gains alone the motor loop ends a move
 # at speed a little past its target and the slide stays there across the backlash gap, where
 # tables measured with calibrate's slow final approach do not reach: the headline then ends at
 # -1.5 to -1.8 counts over ROS, -2.0 to -2.4 in the harness (test_iso230), at the limit.

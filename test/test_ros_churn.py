@@ -6,7 +6,7 @@ realtime_priority 30, the axis moving 1 inch back and forth, while 20 short-live
 (motion_ctrl.ros.visitor: a node that reads a register, subscribes to joint_states and x/status
 for a moment, and exits) join and leave, two at a time, and a recorder starts and stops: no
 FEEDBACK_FAULT, every move within 1 count, the recorder exits cleanly. With
-MOTION_CTRL_SERVO_DOMAIN=off (no servo bus) it fails: README Notes, "ROS tools joining the graph".
+MOTION_CTRL_SERVO_DOMAIN=off (no servo bus) it fails: doc/design_notes.md, "ROS tools joining".
 """
 import re
 import subprocess

@@ -4,7 +4,7 @@ on the default slide, dual feedback) draws the circle and both axes end with MOT
 
 The contour error (<= 5 counts RMS, <= 15 peak) is asserted where the machine cannot touch it,
 on the same servo loop in process (test_coordinated.py). Over DDS on this VM it follows the
-machine's stalls (issue 11, README Notes): by hand 0.82-0.92 RMS and 6.3-6.7 peak, but one CI
+machine's stalls (issue 11, doc/design_notes.md): by hand 0.82-0.92 RMS and 6.3-6.7 peak, but one CI
 run had a 22-count peak from a stall mid-path, and one run here an amplifier-watchdog trip
 mid-path (commands late > 10 ms, the slide braked): 278 counts peak, 18 RMS, and still both
 axes within a count at the end."""

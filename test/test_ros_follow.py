@@ -70,7 +70,8 @@ class Executor(SlideClient):
     def wait_ready(self, timeout: float = 15.0) -> bool:
         """SlideClient.wait_ready; an axis faulted meanwhile (off the servo bus, the nodes'
         discovery can hold the loop up at start-up, on a loaded machine now and then past
-        feedback_timeout: README "The servo bus") is reset and enabled, as an operator would."""
+        feedback_timeout: doc/architecture.md, "The servo bus") is reset and enabled, as an operator
+        would."""
         end = time.monotonic() + timeout
         while (left := end - time.monotonic()) > 0:
             if super().wait_ready(min(3.0, left)):
@@ -179,7 +180,7 @@ def test_without_the_servo_bus_the_node_serves_the_action_itself(rclpy_session, 
                                                                   monkeypatch):
     """MOTION_CTRL_SERVO_DOMAIN=off: no bridge; the same goal succeeds. (The client's
     endpoints are made before the nodes start: off the bus, what joins their domain while the
-    loop runs can hold it up past feedback_timeout, README "The servo bus".)"""
+    loop runs can hold it up past feedback_timeout, doc/architecture.md, "The servo bus".)"""
     monkeypatch.setenv(servo_bus.ENV, 'off')
     with running_slide(tmp_path, Executor, NODES, NODES, ready=_ready_check,
                        client_first=True) as s:

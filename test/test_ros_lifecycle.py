@@ -142,7 +142,7 @@ spin(node)
 
 def test_spin_freezes_what_start_up_made(node_env):
     """Before the loop runs, the objects of start-up (imports, the node) are frozen out of the
-    cyclic collector: its full passes held the servo thread ~20 ms (README, Notes)."""
+    cyclic collector: its full passes held the servo thread ~20 ms (doc/design_notes.md)."""
     r = subprocess.run([sys.executable, '-c', FROZEN], capture_output=True, text=True,
                        timeout=60, env=node_env)
     assert r.returncode == 0, r.stderr

@@ -847,8 +847,8 @@ FLOODS = {'nan-at-1kHz': (JointState(name=['x'], position=[math.nan]), 1000.0,
 def test_a_flood_of_bad_targets_is_logged_once_a_second(slide, axis, case):
     """5 s of refused targets: at most one log line a second (with the count of the others),
     the large ones refused by their size, and the loop keeps running. It prints the loop's
-    rate before and during the flood (README quotes it) but does not assert on it: on this
-    2-core VM the rate varies by more than the 1 % the flood may cost."""
+    rate before and during the flood (doc/performance.md quotes it) but does not assert on it: on
+    this 2-core VM the rate varies by more than the 1 % the flood may cost."""
     p = axis
     msg, rate, refusal = FLOODS[case]
     raw = serialize_message(msg)

@@ -1,8 +1,8 @@
 """Unit tests of motion_ctrl.core.servo_law (PMAC PID, RMC I-PD, velocity forms) and of the servo
 registers in the register table.
 
-Every expected number is worked by hand from the manuals' equations (REFERENCE.md, "Motion control
-semantics"; seeds 000 = RMC Deadband Tolerance, 002 = PMAC Ixx34..Ixx39), in SI units:
+Every expected number is worked by hand from the manuals' equations (RMC Deadband Tolerance;
+PMAC Ixx34..Ixx39), in SI units:
 
     PID   out = kp·FE + I + kvff·CV + kaff·CA − kd·AV + friction_ff·sgn(CV) + bias,
           I += ki·FE·dt (Ixx33), |I| <= integration_limit (Ixx63), FE clipped at Ixx67

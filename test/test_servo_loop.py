@@ -86,8 +86,8 @@ def test_feedback_fault_after_the_timeout_logged_once():
 
 
 def test_a_sample_older_than_the_one_in_hand_is_dropped():
-    """Two paths to the loop (the plant's stream and a bridge's copy of it, a hop later: README
-    "The servo bus") deliver a sample twice, the copy after newer ones. The loop does not step
+    """Two paths to the loop (the plant's stream and a bridge's copy of it, a hop later:
+    doc/plants.md) deliver a sample twice, the copy after newer ones. The loop does not step
     back to it, and stale copies do not feed the feedback watchdog."""
     loop = _loop()
     _run(loop, 0.0, 1.0)

@@ -87,7 +87,7 @@ __all__ = ['Preset', 'PRESETS', 'AxisResponse', 'Evaluation', 'NotchChoice', 'Pr
            'write_response', 'params_yaml', 'format_proposal', 'plot_open_loop',
            'MoveResult', 'move_result', 'format_verification', 'plot_steps']
 
-LATENCY_TICKS = 1          # encoder sample -> command over DDS (as tools/tuning, identify README)
+LATENCY_TICKS = 1          # encoder sample -> command over DDS (as tools/tuning, doc/identify.md)
 FEEDBACKS = ('dual', 'motor')
 NOTCH_KEEP_GAIN = 1.10     # a notch must raise ki by 10 % to be worth its phase lag
 #: the notch family (_notch_candidates): centre as a multiple of the resonance, zero damping

@@ -17,7 +17,7 @@ over ROS with the plan made here and hands the readings back here. Standard and 
   repeatability R_i↑ = 4·s_i↑ (R_i↓ likewise); bidirectional repeatability
   ``R_i = max(2·s_i↑ + 2·s_i↓ + |B_i|, R_i↑, R_i↓)`` and R = max R_i (the formula as in the 2006
   edition, which the 2014 edition keeps as far as the public summaries of it show; the text of
-  the standard was not at hand: REFERENCE.md says to buy it for this formula); unidirectional
+  the standard was not at hand: buy it to check this formula); unidirectional
   systematic error E↑ = max x̄_i↑ − min x̄_i↑ and the bidirectional E = max(x̄↑, x̄↓) −
   min(x̄↑, x̄↓) over all targets; mean bidirectional deviation x̄_i = (x̄_i↑ + x̄_i↓)/2 and the
   mean bidirectional positioning error M = max x̄_i − min x̄_i; accuracy A↑ = max(x̄_i↑ + 2s_i↑)

@@ -56,7 +56,7 @@ DEFAULT_PERIOD = 1e-3               # 1006h = 0: the drive assumes 1 ms
 # s without a SYNC after which the master is taken for dead and the drive's own clock runs the
 # slide, from the last SYNC on (so the watchdog trips command_timeout after the last RPDO in the
 # slide's time, whenever this is decided): longer than the stalls of a master on a loaded
-# machine (README, Performance: multi-ms, now and then tens of ms), which freeze the emulated
+# machine (doc/performance.md: multi-ms, now and then tens of ms), which freeze the emulated
 # slide instead (the SYNC is its clock)
 FREE_RUN = 0.1
 RECEIVE_SLICE = 0.002               # s: a quiet bus this long lets the drives' clock look

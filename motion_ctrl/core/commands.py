@@ -1,10 +1,10 @@
 """The commands of one servo axis and their rules (PMAC / Galil / RMP), as methods of
 `Axis` (motion_ctrl.core.axis). Each returns (accepted, reason): a refused one changes nothing
-but the LIMIT bit where SPEC.md says so.
+but the LIMIT bit where doc/interface.md says so.
 
 Commands (`move_to`, `jog`, `stop`, ...) return (accepted, reason): a refused one changes nothing
-but the LIMIT bit where SPEC.md says so. The axis starts with the loop closed at the position the
-encoders report on the first tick (PMAC Ixx80 = 1, power-on enable).
+but the LIMIT bit where doc/interface.md says so. The axis starts with the loop closed at the
+position the encoders report on the first tick (PMAC Ixx80 = 1, power-on enable).
 
 Motion commands and the status word (RMP semantics, see motion_ctrl.core.settling):
 

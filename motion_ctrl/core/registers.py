@@ -3,7 +3,8 @@
 Each row names the register, its ROS type, default, unit, range, the vendor register it mirrors
 and what it does. This table alone drives parameter declaration and descriptors in the nodes,
 validation (range, type, choices, cross-register rules), the YAML files in params/ and the
-README's register table (`python -m motion_ctrl.core.registers --markdown`).
+register tables of the documentation, doc/parameters.md and doc/canopen.md
+(`python -m motion_ctrl.core.registers --markdown`).
 
 Controller registers are per axis (`<axis>.<name>`); the defaults fit the default plant, the
 Galil manual's backlash slide (1 in = 40,000 motor counts = 10,000 linear counts).
@@ -149,7 +150,7 @@ REALTIME_PRIORITY = _r(
     'SCHED_FIFO priority of every thread of the node (the servo loop and its DDS threads); 0: '
     'normal scheduling. At normal priority CPU load, and ROS tools joining the graph (a Fast DDS '
     'shared-memory health check, eProsima/Fast-DDS#6535), now and then hold the servo streams '
-    'for 333 ms, past feedback_timeout; 30 removed that in the measurements (README, Notes). '
+    'for 333 ms, past feedback_timeout; 30 removed that in the measurements (doc/design_notes.md). '
     'Needs CAP_SYS_NICE or an rtprio limit (ulimit -r); without it the node warns and runs at '
     'normal priority.',
     'LinuxCNC servo-thread, PMAC real-time interrupt', min=0, max=98, read_only=True)
@@ -584,7 +585,7 @@ def plant_consistency(v: dict) -> list[str]:
     return reasons
 
 
-# -- generated artefacts: params/*.yaml and the README table ---------------------------------------
+# -- generated artefacts: params/*.yaml and the documentation's tables -----------------------------
 def yaml_float(value) -> str:
     """A double that every YAML reader types as one: YAML 1.1 wants a '.' (1e-06 -> 1.0e-06)."""
     text = repr(float(value))
@@ -636,6 +637,11 @@ def params_yaml(node: str, globals_, axis_table, axes=('x',)) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _md_cell(text: str) -> str:
+    """Text for a Markdown table cell: `|` would end the cell and `<axis>` read as an HTML tag."""
+    return text.replace('|', '\\|').replace('<', '\\<')
+
+
 def markdown_table(table) -> str:
     rows = ['| register | unit | default | range | vendor | meaning |',
             '|---|---|---|---|---|---|']
@@ -649,8 +655,8 @@ def markdown_table(table) -> str:
         else:
             rng = ''
         default = r.default if not isinstance(r.default, float) else f'{r.default:.6g}'
-        rows.append(f'| `{r.name}` | {r.unit} | {default} | {rng} | {r.vendor} | '
-                    f'{r.description} |')
+        rows.append(f'| `{r.name}` | {r.unit} | {default} | {rng} | {_md_cell(r.vendor)} | '
+                    f'{_md_cell(r.description)} |')
     return '\n'.join(rows) + '\n'
 
 
@@ -663,12 +669,15 @@ GENERATED = {
 }
 
 
-README_BLOCKS = {
-    'registers:controller': lambda: markdown_table(AXIS_REGISTERS),
-    'registers:plant': lambda: markdown_table(PLANT_PARAMETERS),
-}
-# Generated blocks of the documentation pages (doc/<topic>.md), as README's.
+# Generated blocks of the documentation pages (doc/<topic>.md): the text between
+# `<!-- key -->` and `<!-- /key -->`.
 DOC_BLOCKS = {
+    'doc/parameters.md': {
+        'registers:controller': lambda: markdown_table(AXIS_REGISTERS),
+        'registers:controller_globals': lambda: markdown_table(CONTROLLER_GLOBALS),
+        'registers:plant': lambda: markdown_table(PLANT_PARAMETERS),
+        'registers:plant_globals': lambda: markdown_table(PLANT_GLOBALS),
+    },
     'doc/canopen.md': {
         'registers:canopen': lambda: markdown_table(CAN_GLOBALS + CANOPEN_AXIS),
         'registers:virtual_drive': lambda: markdown_table(VIRTUAL_DRIVE_FAULTS),
@@ -676,15 +685,21 @@ DOC_BLOCKS = {
 }
 
 
-def readme_block(text: str, key: str) -> str:
-    """The generated text between `<!-- key -->` and `<!-- /key -->` in README text."""
+def doc_block(text: str, key: str) -> str:
+    """The generated text between `<!-- key -->` and `<!-- /key -->` in a page's text."""
     start = text.index(f'<!-- {key} -->\n') + len(f'<!-- {key} -->\n')
     return text[start:text.index(f'<!-- /{key} -->')]
 
 
-def update_readme(text: str, blocks=None) -> str:
-    for key, make in (README_BLOCKS if blocks is None else blocks).items():
-        text = text.replace(f'<!-- {key} -->\n{readme_block(text, key)}',
+def stale_blocks(text: str, blocks) -> list[str]:
+    """The keys of a page's generated blocks that differ from what the table generates now."""
+    return [key for key, make in blocks.items() if doc_block(text, key) != make()]
+
+
+def update_doc(text: str, blocks) -> str:
+    """A page's text with its generated blocks made again from the table."""
+    for key, make in blocks.items():
+        text = text.replace(f'<!-- {key} -->\n{doc_block(text, key)}',
                             f'<!-- {key} -->\n{make()}')
     return text
 
@@ -695,9 +710,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description='Print or write what the register table generates.')
     ap.add_argument('--yaml', choices=('controller', 'plant', 'virtual_drive'),
                     help='print a params YAML')
-    ap.add_argument('--markdown', choices=('controller', 'plant'), help='print a README table')
+    ap.add_argument('--markdown', choices=('controller', 'plant'),
+                    help='print a register table (Markdown)')
     ap.add_argument('--write', metavar='REPO',
-                    help='rewrite params/*.yaml and the README tables under REPO')
+                    help='rewrite params/*.yaml and the documentation\'s tables under REPO')
     a = ap.parse_args(argv)
     if a.yaml:
         print(GENERATED[f'params/{a.yaml}.yaml'](), end='')
@@ -707,11 +723,9 @@ def main(argv=None) -> int:
     if a.write:
         for path, make in GENERATED.items():
             (pathlib.Path(a.write) / path).write_text(make())
-        readme = pathlib.Path(a.write) / 'README.md'
-        readme.write_text(update_readme(readme.read_text()))
         for path, blocks in DOC_BLOCKS.items():
             doc = pathlib.Path(a.write) / path
-            doc.write_text(update_readme(doc.read_text(), blocks))
+            doc.write_text(update_doc(doc.read_text(), blocks))
     return 0
 
 

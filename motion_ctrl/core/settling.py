@@ -4,7 +4,7 @@ Plain Python (no rclpy), deterministic, stepped with an explicit ``dt`` once per
 after the profile generator has been stepped.  SI units: m, m/s, s.
 
 Source: RSI RapidCode/RMP "Axis Settling" (shared/seeds/004) and the status-word table of
-SPEC.md.  The four settling criteria are
+doc/interface.md.  The four settling criteria are
 
 * fine position tolerance  [m]   -- position moves only;
 * coarse position tolerance [m]  -- position moves only, should be >= fine;

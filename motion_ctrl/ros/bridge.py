@@ -26,7 +26,7 @@ Of `/rosout` and `/parameter_events`, which the other node on the bus publishes 
 node's own messages are copied out.
 
 A tool that joins the user's domain can hold up this process (Fast DDS shared-memory port
-waits, rclpy holding the GIL while it sends: README Notes), but not the node, which only ever
+waits, rclpy holding the GIL while it sends: doc/design_notes.md), but not the node, which only ever
 talks to the bridges and its peer.
 """
 from __future__ import annotations

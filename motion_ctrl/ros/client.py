@@ -48,7 +48,7 @@ class SlideClient(Node):
             self.create_subscription(UInt32, md.status_topic(a),
                                      lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
         # The axis services' clients, made now when asked for: a client (a new reader) joining
-        # later holds the controller up while Fast DDS health-checks its port (README, Notes).
+        # later holds the controller up while Fast DDS health-checks its port (doc/design_notes.md).
         self.axis_services = {
             (a, name): self.create_client(SetBool if kind == 'SetBool' else Trigger,
                                           md.service_name(a, name))
@@ -60,7 +60,7 @@ class SlideClient(Node):
 
     def truth_since(self, stamp: float, timeout: float = 2.0) -> bool:
         """Wait for a plant_states sample stamped at or after `stamp` (s, the plant's clock):
-        the user's copy of a stream can lag a loaded machine (README Notes)."""
+        the user's copy of a stream can lag a loaded machine (doc/design_notes.md)."""
         return self.spin_until(lambda: self.truth_stamp >= stamp, timeout)
 
     def _on_status(self, axis, msg):

@@ -1,5 +1,5 @@
 """The controller node's trajectory action and state, as ros2_controllers'
-joint_trajectory_controller offers them (SPEC "Trajectory action and state"; the rules are
+joint_trajectory_controller offers them (doc/interface.md, "The trajectory action"; the rules are
 motion_ctrl.core.follow_goal's, the user documentation doc/follow_joint_trajectory.md):
 
 * `<node>/follow_joint_trajectory` (control_msgs/action/FollowJointTrajectory): every goal is

@@ -59,7 +59,7 @@ def loopback_udp(environ=os.environ) -> dict:
 
 
 def executor(context=None):
-    """The executor that holds a 1 kHz loop best here (REFERENCE.md: EventsExecutor, about half
+    """The executor that holds a 1 kHz loop best here (measured: EventsExecutor, about half
     the CPU of SingleThreaded), SingleThreaded where rclpy has no EventsExecutor (before Jazzy
     7.1.4). Drive it with spin_once: in rclpy 9.1 EventsExecutor.spin() busy-waits without
     running timers or seeing signals."""
@@ -80,7 +80,7 @@ def realtime(priority: int) -> str | None:
     DDS shared-memory port whose listener thread is not scheduled in time looks stalled to
     another participant's health check, and the node's streams then pause for the check's
     333 ms timeout (eProsima/Fast-DDS#6535) whenever a ROS tool joins the graph. Measured in
-    README ("Timing and DDS").
+    doc/design_notes.md.
     """
     if priority <= 0:
         return None

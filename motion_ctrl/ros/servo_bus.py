@@ -1,6 +1,6 @@
 """The servo bus: plant and controller exchange `encoders` and `command` (and `/clock` in
 lockstep) on a ROS domain of their own that no tool joins; each node's ROS interface is mirrored
-onto the user's domain by a bridge (motion_ctrl.ros.bridge). Issue 11, README Notes.
+onto the user's domain by a bridge (motion_ctrl.ros.bridge). Why: doc/design_notes.md.
 
 Why a domain of its own: a participant joining a domain makes every participant there send to
 its shared-memory port, and Fast DDS sends all of a participant's messages under one lock, so a

@@ -18,8 +18,8 @@ encoder on the slide. Modelled:
 
 Everything is in load-equivalent linear coordinates internally: the motor position x_m is the
 screw's rotation times lead/2π, its equivalent mass J·(2π/lead)². At start-up both encoders read
-0 and the nut bears on the flank that drives the slide positive (SPEC.md), so a positive move shows
-no backlash error and a negative move after it shows the whole gap.
+0 and the nut bears on the flank that drives the slide positive (doc/interface.md), so a
+positive move shows no backlash error and a negative move after it shows the whole gap.
 
 Integration: semi-implicit (symplectic) Euler at `substep_rate` (20 kHz by default, ωT ≈ 0.06 at
 the resonance), which is stable for the contact spring and conserves energy well. The substeps

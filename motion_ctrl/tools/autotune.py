@@ -354,8 +354,8 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     current = axis.get(*READ)
     rate_value = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]
     rate = float(parameter_value_to_python(rate_value))  # type: ignore[arg-type]
-    # (subscribed now, before identify: a reader joining later holds the controller up, README
-    # Notes)
+    # (subscribed now, before identify: a reader joining later holds the controller up,
+    # doc/design_notes.md)
     rec = MoveRecorder(client, args.axis, rate) if args.apply else None
     if args.source is None:
         from motion_ctrl.tools import identify as tid
@@ -497,7 +497,7 @@ def parser() -> argparse.ArgumentParser:
                     'offline)')
     ap.add_argument('--notch', choices=('auto', 'on', 'off'), default='auto',
                     help='auto (default): only where the resonance limits the loop and a '
-                    'notch buys 10 %% more ki (README: the rule)')
+                    'notch buys 10 %% more ki (doc/autotune.md: the rule)')
     ap.add_argument('--current', default=None, metavar='FILE',
                     help='offline: the registers to compare with, as ros2 param load YAML '
                     '(default: the register table\'s defaults)')

@@ -1,6 +1,7 @@
 """Benchmark: what a servo tick costs and how well the loop holds its rate, measured here.
 
-Sections (each prints a small table; paste the output into the README with the machine):
+Sections (each prints a small table; paste the output into doc/performance.md with
+the date, the commit and the machine):
 
 * core   — cost per servo tick of the ROS-free core: Profile.step + Settling.update, and a
            whole Axis.update at rest and moving (in-process, no DDS); the in-process harness

@@ -53,7 +53,7 @@ class AxisUnderTest:
         # joint_states arrive at the servo rate: taken raw (no Python message per sample, the
         # tool must not load the machine whose loop it measures) and only while a reading is
         # being taken. Subscribed once, now: a reader joining later stalls the controller's
-        # publishers while Fast DDS health-checks it (README, Notes).
+        # publishers while Fast DDS health-checks it (doc/design_notes.md).
         self._raw: list[bytes] = []
         self._collect = False
         self._type = JointState
@@ -382,9 +382,8 @@ def axis_session(args, tool: str, services: bool = False, truth: bool = False):
     out = pathlib.Path(args.out or datetime.datetime.now().strftime(
         f'out/{tool}-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
-    # The nodes first, then this participant (as the demo): a client that was there before
-    # the nodes started saw the first move end in FOLLOWING_ERROR_FATAL, 3 runs of 3 (not
-    # understood; README Notes).
+    # The nodes first, then this participant, as the demo does (why: doc/design_notes.md, "A
+    # client that starts before the nodes").
     nodes = _spawn(args, out) if args.spawn else ()
     if args.lockstep:
         from motion_ctrl.ros.lockstep import client_context

@@ -144,7 +144,8 @@ def main(argv=None) -> int:
     ap.add_argument('--friction-ff', type=float, default=0.24,
                     help='friction feedforward of both axes [V] (0.24: the slide\'s friction)')
     ap.add_argument('--realtime-priority', type=int, default=30,
-                    help='realtime_priority of both nodes (0: normal scheduling; README Notes: '
+                    help='realtime_priority of both nodes (0: normal scheduling; '
+                         'doc/several_axes.md: '
                          'with this example running beside them on two cores, normal '
                          'scheduling lets the nodes wait)')
     ap.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
@@ -218,7 +219,7 @@ def main(argv=None) -> int:
                 outcome = 'yes'
                 done = client.follow(list(AXES), points.times, points.positions,
                                      points.velocities, points.accelerations) is not None
-            # the user's copy of plant_states can lag a loaded machine (README Notes): the
+            # the user's copy of plant_states can lag a loaded machine (doc/design_notes.md): the
             # final figures from a sample of after the end
             client.truth_since(time.time())
             client.spin_for(0.05)

@@ -84,7 +84,7 @@ class Excitation:
         self.axis = axis_under_test
         self.client = axis_under_test.client
         self.records: dict[int, tuple] = {}          # run -> (columns, meta)
-        # Subscribed once, now (a reader joining later holds the controller up, README Notes);
+        # Subscribed once, now (a reader joining later holds the controller up: design notes);
         # latched: a record that is late or resent still arrives whole.
         self.client.create_subscription(Float64MultiArray, md.gather_topic(self.axis.axis),
                                         self._on_gather, md.GATHER_QOS)

@@ -1,10 +1,10 @@
 """The headline scenario table: the Galil 1-inch move after a reversal, by every method.
 
-From the start-up state of SPEC.md (both encoders 0, nut on the positive flank) the slide moves
-to +2 in, settles, then moves back to +1 in: the 1-inch move after a reversal, where the whole
-backlash (20 linear counts) stands between motor and slide. Each configuration runs in the
-in-process harness on the same plant; the table gives the true slide error at the end, the time
-from move start to MOTION_DONE, the peak following error and the number of sampled correction
+From the start-up state of doc/interface.md (both encoders 0, nut on the positive flank) the
+slide moves to +2 in, settles, then moves back to +1 in: the 1-inch move after a reversal,
+where the whole backlash (20 linear counts) stands between motor and slide. Each configuration runs
+in the in-process harness on the same plant; the table gives the true slide error at the end, the
+time from move start to MOTION_DONE, the peak following error and the number of sampled correction
 moves. `ros2 run motion_ctrl scenarios` prints it.
 """
 from __future__ import annotations

@@ -114,8 +114,8 @@ class Soak:
         self.moves += 1
         if took is None:
             # Not seen to end in 5 s: if no fault came, the loop may be done and its status
-            # words still on their way through a loaded machine's bridge (README, the servo
-            # bus). Wait for them and count the move as seen late, apart from the faults.
+            # words still on their way through a loaded machine's bridge (doc/architecture.md,
+            # the servo bus). Wait for them and count the move as seen late, apart from the faults.
             took = c.wait_moves({self.axis: mark}, t0, LATE_WAIT)
             if took is not None:
                 self.late.append(took)
@@ -195,7 +195,7 @@ def main(argv=None) -> int:
     ap.add_argument('--busy', type=int, default=1, help='busy CPU loops beside the nodes')
     ap.add_argument('--servo-bus', default='auto',
                     help='MOTION_CTRL_SERVO_DOMAIN for both nodes: auto (the servo bus, '
-                         'README), a domain id, or off')
+                         'doc/architecture.md), a domain id, or off')
     ap.add_argument('--realtime-priority', type=int, default=30,
                     help='realtime_priority of both nodes (0: normal scheduling)')
     ap.add_argument('--visitors', type=int, default=None,
