@@ -8,10 +8,13 @@ slide starts. The ROS domain and the node environment stay the fixtures of conft
 from __future__ import annotations
 
 import contextlib
+import os
 import pathlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
+
+import pytest
 
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M, MOTOR_COUNTS_PER_M, axis_defaults
 
@@ -35,6 +38,14 @@ def enabled_xy():
         assert a.enable(True)[0]
     h.run(0.2)
     return h
+
+
+def long_run(what: str):
+    """Opt-in (MOTION_CTRL_LONG=1) for a test of minutes or one that repeats what another test
+    in the default suite already shows on a shorter path: the suite stays well inside CI's 15
+    minutes. `what` says how long and what covers it meanwhile."""
+    return pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
+                              reason=f'opt-in, {what}: MOTION_CTRL_LONG=1')
 
 
 def spin_for(client, seconds: float) -> None:

@@ -3,13 +3,16 @@ the plant as a node of its own (two processes) and with the slide inside the con
 (`hardware: sim`, one process, the controller the clock: issue 25)."""
 import pytest
 
+from kit import long_run
 from motion_ctrl.ros.lockstep import run_lockstep
 
 COUNT = 0.0254 / 10000
 
 
 @pytest.mark.timeout(180)
-@pytest.mark.parametrize('hardware', ['topics', 'sim'])
+@pytest.mark.parametrize('hardware', [
+    pytest.param('topics', marks=long_run('35 s; the sim form is the same rule in one process')),
+    'sim'])
 def test_same_move_twice_is_bit_identical(rclpy_session, tmp_path, hardware):
     runs = []
     for i in range(2):

@@ -20,7 +20,7 @@ import time
 import pytest
 
 from conftest import REPO_ROOT
-from kit import COUNT, INCH
+from kit import COUNT, INCH, long_run
 from motion_ctrl.ros.processes import PRIVATE_NET, private_network
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
@@ -227,6 +227,8 @@ def test_start_up_refuses_a_missing_wrong_or_unmappable_drive(request, tmp_path)
                 drive.stop()
 
 
+@long_run('70 s; the headline, the faults and the start-up refusals through canopen stay in the '
+          'default suite')
 def test_identify_autotune_and_calibrate_run_unchanged_through_canopen(request, tmp_path):
     """The tools as a user runs them on a real drive (their short runs): identify finds the
     resonance, autotune's proposal verifies with real moves, calibrate measures the backlash."""

@@ -8,17 +8,16 @@ for a moment, and exits) join and leave, two at a time, and a recorder starts an
 FEEDBACK_FAULT, every move within 1 count, the recorder exits cleanly. With
 MOTION_CTRL_SERVO_DOMAIN=off (no servo bus) it fails: doc/design_notes.md, "ROS tools joining".
 """
-import os
 import re
 import subprocess
 import sys
 
 import pytest
 
+from kit import long_run
 
-@pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
-                    reason='opt-in, 1-2 min: MOTION_CTRL_LONG=1 (a soak; scripts/soak runs it '
-                           'for as long as you like)')
+
+@long_run('1-2 min; a soak: scripts/soak runs it for as long as you like')
 @pytest.mark.timeout(300)          # (about a minute here; scripts/soak for a long run)
 def test_joining_tools_and_a_recorder_do_not_open_the_loop(tmp_path, node_env):
     run = subprocess.run(

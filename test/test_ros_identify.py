@@ -13,6 +13,7 @@ import sys
 import pytest
 import yaml
 
+from kit import long_run
 from motion_ctrl.core.registers import PLANT_AXIS
 from motion_ctrl.sim.plant import SlidePlant
 
@@ -21,7 +22,9 @@ KT = PLANT_AXIS['torque_constant'].default
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize('plant', [{}, {'screw_stiffness': 5.0e6, 'slide_mass': 10.0}],
+@pytest.mark.parametrize('plant', [{}, pytest.param(
+    {'screw_stiffness': 5.0e6, 'slide_mass': 10.0},
+    marks=long_run('40 s; the default slide runs the same tool in the default suite'))],
                          ids=['default', 'soft-heavy'])
 def test_identify_finds_the_plant(node_env, tmp_path, plant):
     truth = SlidePlant(**plant)
