@@ -20,6 +20,7 @@ from msg_defs.topics import (
 # import on a machine without ROS.
 _LAZY = {
     'SERVO_QOS': 'msg_defs.qos', 'SERVO_READ_QOS': 'msg_defs.qos', 'STATUS_QOS': 'msg_defs.qos',
+    'STATUS_CHANGES_QOS': 'msg_defs.qos', 'LATCHED_QOS': 'msg_defs.qos',
     'STATUS_DEPTH': 'msg_defs.qos',
     'joint_state': 'msg_defs.joint_state', 'read_joint_state': 'msg_defs.joint_state',
     'MalformedMessage': 'msg_defs.joint_state', 'JointStateStream': 'msg_defs.joint_state',
@@ -46,7 +47,7 @@ __all__ = [
     'JOINT_TRAJECTORY', 'DIAGNOSTICS', 'FOLLOW_JOINT_TRAJECTORY', 'CONTROLLER_STATE', 'QUERY_STATE',
     'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint',
     'load_joint', 'split_joint',
-    'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'STATUS_DEPTH', 'joint_state', 'read_joint_state',
+    'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'STATUS_CHANGES_QOS', 'LATCHED_QOS', 'STATUS_DEPTH', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream', 'Stream', 'joint_trajectory',
     'read_joint_trajectory', 'gather_topic', 'GATHER_QOS', 'gather_message', 'read_gather',
 ]

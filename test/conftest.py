@@ -227,3 +227,31 @@ def node_env(module_domain):
     env = os.environ.copy()
     env['PYTHONPATH'] = os.pathsep.join(p for p in (REPO_ROOT, env.get('PYTHONPATH')) if p)
     return env
+
+
+# -- a test whose servo link stalled --------------------------------------------------------------
+# On this 2-core VM the DDS link between the plant and controller processes sometimes stalls for
+# 20-60 ms; the controller then does what it must (FEEDBACK_FAULT, loop opened) and the plant's
+# watchdog trips, and a test of something else (a trajectory's refusals, a parameter set) fails
+# on a move that the fault ended. A fixture that runs such a link sets `item.servo_link_stalled`
+# to the fault's log line when one came during the test; such a test that failed runs once more
+# (reported as a rerun, with the line). A test that fails without a stall, or fails again, fails.
+def pytest_runtest_protocol(item, nextitem):
+    from _pytest.runner import runtestprotocol
+    item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+    reports = runtestprotocol(item, nextitem=nextitem, log=False)
+    stalled = getattr(item, 'servo_link_stalled', '')
+    if stalled and any(r.failed for r in reports):
+        failed = next(r for r in reports if r.failed)
+        writer = item.config.pluginmanager.get_plugin('terminalreporter')
+        if writer is not None:
+            writer.write_line(f'\nRERUN {item.nodeid}: the servo link stalled during it '
+                              f'({stalled.strip()}); it failed with: '
+                              f'{str(failed.longrepr).splitlines()[-1][:300]}', yellow=True)
+        item.servo_link_stalled = ''
+        item._initrequest()
+        reports = runtestprotocol(item, nextitem=nextitem, log=False)
+    for report in reports:
+        item.ihook.pytest_runtest_logreport(report=report)
+    item.ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
+    return True

@@ -74,17 +74,19 @@ def interface_type(name: str):
     return found
 
 
-LATCHED_DEPTH = 10           # the last changes of a latched topic (a gather record: the last)
+STATUS_WORDS_DEPTH = 10      # the last status words on the user's side (a second at rest)
 
 
 def outward_qos(info, topic: str = '') -> QoSProfile:
     """The node's publisher QoS for the user's side: same reliability and durability; a
-    latched topic keeps its last LATCHED_DEPTH samples (a reader that falls behind still gets a
-    status word's MOTION_DONE cleared and raised; a gather record keeps one, it is one run), a
-    stream a second of samples."""
+    status word keeps its last STATUS_WORDS_DEPTH words (a reader that falls behind still gets
+    MOTION_DONE cleared and raised; the word is republished at 10 Hz, so a second after a
+    change a late joiner's words are all the current one), every other latched topic its
+    current value only (a late joiner gets that, not a history), a stream a second of
+    samples."""
     latched = info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
     reliable = info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
-    depth = (1 if topic.endswith('/gather') else LATCHED_DEPTH) if latched else \
+    depth = (STATUS_WORDS_DEPTH if topic.endswith('/status') else 1) if latched else \
         (STREAM_DEPTH if reliable else 10)
     return QoSProfile(
         depth=depth,
@@ -155,8 +157,8 @@ class _Outward:
         wanted = ((self.latched and self.own is None)
                   or self.pub.get_subscription_count() > 0)
         if wanted and self.sub is None:
-            # (a latched topic's every change: a status word's MOTION_DONE cleared and raised)
-            qos = QoSProfile(depth=LATCHED_DEPTH if self.latched else self.qos.depth,
+            # (a status word's every change: MOTION_DONE cleared and raised)
+            qos = QoSProfile(depth=STATUS_WORDS_DEPTH if self.latched else self.qos.depth,
                              reliability=self.qos.reliability, durability=self.qos.durability)
             self.sub = self.reader.create_subscription(
                 self.msg_type, self.topic, self._copy, qos, raw=self.own is None)

@@ -46,7 +46,8 @@ class SlideClient(Node):
                                      md.SERVO_READ_QOS)
         for a in self.axes:
             self.create_subscription(UInt32, md.status_topic(a),
-                                     lambda m, a=a: self._on_status(a, m), md.STATUS_QOS)
+                                     lambda m, a=a: self._on_status(a, m),
+                                     md.STATUS_CHANGES_QOS)
         # The axis services' clients, made now when asked for: a client (a new reader) joining
         # later holds the controller up while Fast DDS health-checks its port (doc/design_notes.md).
         self.axis_services = {

@@ -25,7 +25,7 @@ class PlantStates:
         self.command_timeout = command_timeout
         self.pub_truth = node.stream(JointState, md.PLANT_STATES, refresh=refresh)
         self.pub_amp = node.stream(JointState, md.AMPLIFIER_STATES, refresh=refresh)
-        self.pub_fault = {a: node.stream(Bool, md.amplifier_fault_topic(a), md.STATUS_QOS)
+        self.pub_fault = {a: node.stream(Bool, md.amplifier_fault_topic(a), md.LATCHED_QOS)
                           for a in self.axes}
         self.fault: list[bool] | None = None      # per axis, as last published
 
