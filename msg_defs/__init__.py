@@ -47,7 +47,8 @@ __all__ = [
     'JOINT_TRAJECTORY', 'DIAGNOSTICS', 'FOLLOW_JOINT_TRAJECTORY', 'CONTROLLER_STATE', 'QUERY_STATE',
     'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint',
     'load_joint', 'split_joint',
-    'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'STATUS_CHANGES_QOS', 'LATCHED_QOS', 'STATUS_DEPTH', 'joint_state', 'read_joint_state',
+    'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'STATUS_CHANGES_QOS', 'LATCHED_QOS',
+    'STATUS_DEPTH', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream', 'Stream', 'joint_trajectory',
     'read_joint_trajectory', 'gather_topic', 'GATHER_QOS', 'gather_message', 'read_gather',
 ]

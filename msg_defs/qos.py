@@ -22,8 +22,8 @@ change they are all the current word). A client that waits for a move's MOTION_D
 words published from its start on (STATUS_CHANGES_QOS, volatile): a history arriving after it
 sent its target would show an earlier move's MOTION_DONE cleared and raised; its first word
 comes with the next change or refresh. The record of an excitation run is reliable and
-transient local too (GATHER_QOS, the last run only): a reader that joins or loses a sample late still
-gets the whole record, repaired by the reliable protocol; an amplifier's fault flag
+transient local too (GATHER_QOS, the last run only): a reader that joins or loses a sample
+late still gets the whole record, repaired by the reliable protocol; an amplifier's fault flag
 (LATCHED_QOS) keeps only its current value.
 """
 from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPolicy

@@ -53,6 +53,21 @@ def spin_for(client, seconds: float) -> None:
     client.spin_for(seconds)
 
 
+# What the nodes log when the DDS link between plant and controller stalled: no encoder sample,
+# no command (conftest.pytest_runtest_protocol reruns a failed test that saw one).
+SERVO_LINK_STALLS = ('FEEDBACK_FAULT: no new encoder sample', 'amplifier fault: no command')
+
+
+def note_link_stalls(request, *texts: str) -> None:
+    """Note on the test the first line of `texts` (what the nodes logged during it) that says
+    the servo link stalled, unless the test is marked servo_link_under_test."""
+    if request.node.get_closest_marker('servo_link_under_test') is not None:
+        return
+    stalls = [line for text in texts for line in text.splitlines()
+              if any(s in line for s in SERVO_LINK_STALLS)]
+    request.node.servo_link_stalled = stalls[0] if stalls else ''
+
+
 @dataclass
 class Slide:
     """The nodes of a running slide and the client watching it. A test that replaces a node

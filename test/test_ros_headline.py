@@ -4,7 +4,7 @@ import pytest
 
 from motion_ctrl.ros import servo_bus
 
-from kit import COUNT, INCH, running_slide, spin_for
+from kit import COUNT, INCH, note_link_stalls, running_slide, spin_for
 from msg_defs.status import Status
 from motion_ctrl.ros.client import SlideClient
 
@@ -21,6 +21,7 @@ def slide(rclpy_session, tmp_path, request, monkeypatch):
                        {'x.feedback': feedback}, exit_zero=True,
                        plant_env={servo_bus.ENV: 'off'} if plant else None) as s:
         yield s.client
+        note_link_stalls(request, s.log('controller'), s.log('plant'))
         if plant:
             assert 'copied in' in s.log('controller'), s.log('controller')
 

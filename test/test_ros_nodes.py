@@ -30,7 +30,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
-from kit import COUNT, INCH, running_slide, spin_for  # noqa: E402
+from kit import COUNT, INCH, note_link_stalls, running_slide, spin_for  # noqa: E402
 from motion_ctrl.core import registers  # noqa: E402
 from motion_ctrl.ros.client import SlideClient  # noqa: E402
 
@@ -280,14 +280,7 @@ def axis(slide, request):
     logs = (slide.controller_log, slide.plant_log)
     start = [len(log.text()) for log in logs]
     yield p
-    stalls = [line for log, n in zip(logs, start) for line in log.text()[n:].splitlines()
-              if any(s in line for s in SERVO_LINK_STALLS)]
-    if request.node.get_closest_marker('servo_link_under_test') is None:
-        request.node.servo_link_stalled = stalls[0] if stalls else ''
-
-
-# What the nodes log when the DDS link between them stalled: no encoder sample, no command.
-SERVO_LINK_STALLS = ('FEEDBACK_FAULT: no new encoder sample', 'amplifier fault: no command')
+    note_link_stalls(request, *(log.text()[n:] for log, n in zip(logs, start)))
 
 
 def _ready_axis(slide):
@@ -1027,7 +1020,8 @@ def test_trajectory_over_dds_lands_and_refusals_leave_it_untouched(slide, axis):
     # arrive later than joint_states on a loaded machine)
     done_tick = p.spin_for_messages(5)[-1][0]
     assert p.spin_until(lambda: p.ref_log[-1][0] >= done_tick, 5.0), 'reference_states stopped'
-    assert abs(p.ref_log[-1][1] - end) < 1e-12, (start, end, [l for l in slide.controller_log.text().splitlines() if "servo loop at" not in l][-12:], [(round(t, 3), repr(Status(w))) for t, w in p.status_log["x"][mark:]])
+    assert abs(p.ref_log[-1][1] - end) < 1e-12, (
+        start, end, [(round(t, 3), repr(Status(w))) for t, w in p.status_log['x'][mark:]])
     assert abs(p.load_position() - end) <= 1 * COUNT, (p.load_position() - end) / COUNT
     text = slide.controller_log.text()
     for case, (_, reason) in bad.items():
