@@ -64,12 +64,8 @@ class MoveRecorder:
         self._raw: list = []
         self._on = False
         self.hunting = ''        # the controller's /diagnostics message while it reports hunting
-        # Read reliably with a second's history: a move's status words are placed among the
-        # samples by their order of arrival, and a reader's short history, overwritten while
-        # the tool fell behind a controller ticking faster than real time (the sim clock), put
-        # them among later samples (settle times 2-40x too long).
         client.create_subscription(JointState, md.JOINT_STATES, self._on_joint,
-                                   md.SERVO_QOS, raw=True)
+                                   md.SERVO_READ_QOS, raw=True)
         client.create_subscription(DiagnosticArray, md.DIAGNOSTICS, self._on_diagnostics, 10)
 
     def _on_diagnostics(self, msg) -> None:
