@@ -21,7 +21,8 @@ With `use_sim_time` and `hardware: topics` the servo tick is driven by the encod
 instead of a timer (like a drive synchronised to its fieldbus cycle): each new sample, stamped in
 sim time, is one tick, and the command carries the sample's stamp. With the plant in lockstep
 this makes a scenario deterministic. With `use_sim_time` and `hardware: sim` this node is the
-clock: it ticks back to back, as fast as the machine allows, publishes `/clock` and runs the
+clock: it ticks back to back, as fast as the machine allows up to MAX_SIM_SPEED times real
+time, publishes `/clock` and runs the
 callbacks that came (targets, services, parameters) between batches of ticks (SIM_BATCH s of
 wall time): deterministic for targets stamped ahead. Its /clock is published once a batch.
 
@@ -95,6 +96,11 @@ REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
 # s of wall time the sim clock (hardware sim, use_sim_time) ticks before it runs the callbacks
 SIM_BATCH = 0.001
+# sim seconds per wall second at most (hardware sim, use_sim_time): a client reading the streams
+# (a tool placing a move's status words among the joint_states samples, a recorder) keeps up;
+# unbounded, the clock ran ~14x real time and a tool's readings of a move lagged it by tens to
+# hundreds of ms of sim time, and its targets landed at times set by its own lag
+MAX_SIM_SPEED = 4.0
 # s of wall time a state stream goes on from its last look at its readers (a reader that joins
 # misses at most this much; looking costs ~3 µs a stream a tick)
 READERS_REFRESH = 0.05
@@ -576,6 +582,7 @@ class ControllerNode(ros_params.RegisterNode):
         ticks' time (it does not read /clock, which it would only hear from itself)."""
         self.pub_clock = self.create_publisher(ClockMsg, md.CLOCK, 10)
         self.sim_ns = 0
+        self.sim_wall_start = time.perf_counter()
         self.next_diagnostics_ns = 1_000_000_000
         self._time_source.detach_node()
         self._time_source.clock_callback(ClockMsg())
@@ -601,7 +608,9 @@ class ControllerNode(ros_params.RegisterNode):
         clock = ClockMsg(clock=stamp_of((self.sim_ns - self.period_ns) * 1e-9))
         self.pub_clock.publish(clock)
         self._time_source.clock_callback(clock)
-        executor.spin_once(timeout_sec=0.0)
+        ahead = (self.sim_ns * 1e-9 / MAX_SIM_SPEED
+                 - (time.perf_counter() - self.sim_wall_start))
+        executor.spin_once(timeout_sec=max(ahead, 0.0))
 
     def shutdown_outputs(self) -> None:
         """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V
