@@ -589,13 +589,20 @@ class ControllerNode(ros_params.RegisterNode):
 
     def spin_step(self, executor) -> None:
         """What `spin` runs over and over: in real time, the executor (timer, callbacks); with
-        the sim clock, servo ticks back to back for SIM_BATCH s of wall time, then /clock (the
+        the sim clock, servo ticks back to back for SIM_BATCH s of wall time (none while the
+        sim time is ahead of MAX_SIM_SPEED x the wall time since the start), then /clock (the
         time of the last tick: ~1 kHz of wall time, as a simulator publishes it; one message
         per tick would cost every reader of /clock more than the tick itself) and the
         callbacks that came meanwhile."""
         if not self.sim_clock:
             executor.spin_once(timeout_sec=0.05)
             return
+        ahead = self.sim_ns * 1e-9 / MAX_SIM_SPEED - (time.perf_counter() - self.sim_wall_start)
+        if ahead > 0.0:                 # (at MAX_SIM_SPEED: callbacks only, until it is time)
+            executor.spin_once(timeout_sec=min(ahead, SIM_BATCH))
+            return
+        if ahead < -SIM_BATCH:          # behind (a busy machine): on from now, not in a burst
+            self.sim_wall_start = time.perf_counter() - self.sim_ns * 1e-9 / MAX_SIM_SPEED
         end = time.perf_counter() + SIM_BATCH
         while True:
             self._tick(stamp_of(self.sim_ns * 1e-9))
@@ -608,9 +615,7 @@ class ControllerNode(ros_params.RegisterNode):
         clock = ClockMsg(clock=stamp_of((self.sim_ns - self.period_ns) * 1e-9))
         self.pub_clock.publish(clock)
         self._time_source.clock_callback(clock)
-        ahead = (self.sim_ns * 1e-9 / MAX_SIM_SPEED
-                 - (time.perf_counter() - self.sim_wall_start))
-        executor.spin_once(timeout_sec=max(ahead, 0.0))
+        executor.spin_once(timeout_sec=0.0)
 
     def shutdown_outputs(self) -> None:
         """Before the node goes (SIGINT, SIGTERM, launch's Ctrl-C): every loop opened and 0 V
