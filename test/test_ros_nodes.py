@@ -945,8 +945,11 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
     """/diagnostics about once a second: the achieved rate, the period jitter and the skipped
     ticks it reports for each window are those of the ticks themselves, recomputed here from
     the reference_states stamps (one message per tick, read reliably) that fall in the window;
-    plus the work per tick and a per-axis summary (mode, feedback, enabled, status)."""
+    plus the work per tick and a per-axis summary (mode, feedback, enabled, status). It starts
+    with a move: the hunting watch's count restarts with a motion, and the test before may have
+    knocked the slide about (foreign encoders) within the watch's 10 s memory."""
     p = axis
+    p.move_and_wait(far_target(p.position(), 0.002))
     start = len(p.diag)
     assert p.spin_until(lambda: len(p.diag) >= start + 4, 6.0), 'no /diagnostics at ~1 Hz'
     msgs = [m for _, m in p.diag[start:]]
