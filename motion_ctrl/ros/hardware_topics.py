@@ -77,11 +77,15 @@ class TopicsHardware(HardwareInterface):
             self.node.get_logger().warning(f'encoders ignored: {e}', throttle_duration_sec=1.0)
             return
         stamp = seconds_of(msg.header.stamp)
+        used = False
         for io, motor, load in self.joints:
             m, l = counts.get(motor), counts.get(load)
             if m is not None and l is not None:
                 io.sample(int(m), int(l), stamp)
-        if self.on_sample is not None:
+                used = True
+        # (a message with no whole sample of ours is not a sample: it neither ticks the loop
+        # in sim time nor moves the timer's phase)
+        if used and self.on_sample is not None:
             self.on_sample(msg.header.stamp)
 
     def stamp_tick(self, stamp, now: float) -> None:
