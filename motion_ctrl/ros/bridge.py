@@ -15,7 +15,8 @@ with the same interface, by reading the node's endpoints from the servo bus's gr
   domain: a plant (or controller) of another make, which does not join the bus, or a test's
   publisher. Then everything published on that topic there is copied in, another bridge's copy
   of the bus's own stream too: it reaches the loop a hop late and twice, and the loop drops a
-  sample older than the one it holds (core.servo_loop.ServoLoop.feedback);
+  sample older than the one it holds (core.servo_loop.ServoLoop.feedback); once only bridges
+  publish it there, the copy stops;
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
   unchanged) is answered by calling the node's service and returning its response. An action is
   three services and two topics under `<name>/_action/`, mirrored as such (its goal ids
@@ -195,6 +196,9 @@ class Bridge:
         self.group = ReentrantCallbackGroup()
         self.outward: dict[str, _Outward] = {}
         self.inward: set[str] = set()            # topics copied in
+        # the servo streams copied in, while a foreign node publishes them: (reader, its
+        # subscription, the publisher on the bus)
+        self.copied_in: dict[str, tuple] = {}
         self.services: set[str] = set()          # services answered
         self.skipped: set[str] = set()           # names whose type is not installed here
         self.dropping: set[str] = set()          # topics that lost a sample (logged once)
@@ -235,6 +239,15 @@ class Bridge:
             msg_type = self._type(topic, types)
             if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
+        for topic in [t for t in self.copied_in if not self._foreign_publisher(t, True)]:
+            # (no foreign publisher left: else the bus's own stream, copied out by another
+            # bridge for this copy's reader, would come back in a hop late for ever)
+            reader, sub, out = self.copied_in.pop(topic)
+            reader.destroy_subscription(sub)
+            self.servo.destroy_publisher(out)
+            self.inward.discard(topic)
+            self.log(f'bridge: {topic} has no publisher left on the user\'s domain but the '
+                     'bridges: no longer copied in')
         for topic, types in self.servo.get_subscriber_names_and_types_by_node(self.name, ns):
             if topic in self.inward or (topic in SERVO_TOPICS
                                         and not self._foreign_publisher(topic)):
@@ -248,11 +261,12 @@ class Bridge:
             out = self.servo.create_publisher(msg_type, topic, qos)
             # (a group per topic: its samples copied one at a time, in the order they came)
             reader = self.servo_in if topic in SERVO_TOPICS else self.public
-            reader.create_subscription(
+            sub = reader.create_subscription(
                 msg_type, topic, lambda data, out=out: out.publish(data), qos, raw=True,
                 callback_group=MutuallyExclusiveCallbackGroup())
             self.inward.add(topic)
             if topic in SERVO_TOPICS:
+                self.copied_in[topic] = (reader, sub, out)
                 self.log(f'bridge: {topic} is published on the user\'s domain by a node that '
                          f'is not on the servo bus: copied in (a hop more of latency, and '
                          f'what joins the user\'s domain can hold it up)')
@@ -267,16 +281,17 @@ class Bridge:
                 srv_type, service, self._forward(client, service), callback_group=self.group)
             self.services.add(service)
 
-    def _foreign_publisher(self, topic: str) -> bool:
+    def _foreign_publisher(self, topic: str, unknown: bool = False) -> bool:
         """Whether a node on the user's domain that is not a bridge publishes `topic` there. A
         bridge's participant there holds `_bridge_<name>_in` beside `<name>`, and a participant's
         node names arrive together, so this does not depend on what the bus's discovery has
-        seen yet (a restarted peer's bridge was once taken for a plant of another make)."""
+        seen yet (a restarted peer's bridge was once taken for a plant of another make).
+        `unknown`: a publisher whose node's names are not in yet counts as foreign."""
         nodes = self.public.get_node_names_and_namespaces()
         bridges = {(n[len('_bridge_'):-len('_in')], ns) for n, ns in nodes
                    if n.startswith('_bridge_') and n.endswith('_in')}
         return any((i.node_name, i.node_namespace) not in bridges
-                   and i.node_name != UNKNOWN_NODE          # (its names not in yet: next look)
+                   and (unknown or i.node_name != UNKNOWN_NODE)  # (names not in yet: next look)
                    for i in self.public.get_publishers_info_by_topic(topic))
 
     def _strangers(self, nodes: list[tuple[str, str]]) -> None:
