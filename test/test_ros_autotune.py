@@ -149,7 +149,9 @@ LONG = pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
 
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize('name', [
-    'screw_5x_softer_stiction_2x',
+    # (opt-in since the sim clock is held to 4x real time: 56 s; test_rest holds the rule on
+    # this slide without ROS, the notch and stiff runs above autotune over ROS)
+    pytest.param('screw_5x_softer_stiction_2x', marks=LONG),
     pytest.param('screw_2_5x_softer_stiction_4x', marks=LONG),
     pytest.param('slide_8kg_screw_5x_softer', marks=LONG)])
 def test_autotune_brings_a_sticky_slide_to_rest(node_env, tmp_path, name):
