@@ -149,6 +149,9 @@ def test_a_goal_through_several_points_succeeds_within_a_count(xy):
         assert xy.axes[a].status & S.MOTION_DONE
     # feedback all along: the index passes every point, the desired path is continuous
     assert d.feedback[0].next_point == 1 and d.feedback[-1].next_point == 4
+    # and the result carries the last feedback: the state at the end, past the last point
+    assert e.last is not None and e.last.next_point == 4 and e.last.time >= 2.0
+    assert abs(e.last.actual[0][0] - xy.axes['x'].actual_pos) < 1e-12
     desired_x = np.array([fb.desired[0][0] for fb in d.feedback])
     assert np.abs(np.diff(desired_x)).max() <= 0.1 * xy.T * 1.01
     assert max(abs(fb.error[0][0]) for fb in d.feedback) < 20 * COUNT

@@ -138,23 +138,27 @@ class CheckedGoal:
 
 class Ended(NamedTuple):
     """A goal that ended: its handle, how (SUCCEEDED, ABORTED, CANCELED), the result's code
-    and text."""
+    and text; `last`, a goal that succeeded: its state at the end (its final feedback, past
+    the last point)."""
     handle: Any
     outcome: str
     code: int
     text: str
+    last: Feedback | None = None
 
 
 class Feedback(NamedTuple):
     """The running goal now, per axis in `names` order: desired (command) position, velocity,
     acceleration; actual; error (position: the following error, i.e. against the command of the
     encoder sample's own time); `next_point`, the number of the trajectory's points passed
-    (the index of the next one: control_msgs' feedback `index`)."""
+    (the index of the next one: control_msgs' feedback `index`); `time`, seconds since the
+    trajectory's start."""
     names: tuple
     desired: tuple
     actual: tuple
     error: tuple
     next_point: int
+    time: float
 
 
 # ------------------------------------------------------------------------------ the checks
@@ -463,8 +467,9 @@ class GoalRunner:
         if waiting:
             return []
         where = self._where(g, with_errors=True)
+        last = self._state(g, g.t0 + t)
         return [self._end(g, SUCCEEDED, SUCCESSFUL, f'reached at t={t:.3f} s: {where}',
-                          stop=False)]
+                          stop=False)._replace(last=last)]
 
     # -- what the action server reads ---------------------------------------------------------
     def feedback(self, now: float) -> Feedback | None:
@@ -472,6 +477,9 @@ class GoalRunner:
         g = self.active
         if g is None or g.phase == WAITING:
             return None
+        return self._state(g, now)
+
+    def _state(self, g: _Goal, now: float) -> Feedback:
         desired, actual, error = [], [], []
         for a in g.goal.names:
             axis = self.axes[a]
@@ -480,7 +488,8 @@ class GoalRunner:
             actual.append((axis.actual_pos, axis.actual_vel, actual_acceleration(axis)))
             error.append(errors(axis))
         index = bisect.bisect_right(g.goal.times, now - g.t0)
-        return Feedback(g.goal.names, tuple(desired), tuple(actual), tuple(error), index)
+        return Feedback(g.goal.names, tuple(desired), tuple(actual), tuple(error), index,
+                        now - g.t0)
 
     def desired_at(self, when: float) -> tuple[tuple, list] | str:
         """QueryTrajectoryState: (names, [(p, v, a) per axis]) the goal's trajectory commands

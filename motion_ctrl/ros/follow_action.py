@@ -7,7 +7,8 @@ motion_ctrl.core.follow_goal's, the user documentation doc/follow_joint_trajecto
   milliseconds, as on `joint_trajectory`), or at once in sim time; the next servo tick hands the
   outcome to the GoalRunner, which starts it or ends it with the refusal's code. After each servo
   tick the runner judges the goal (plain comparisons) and the goals it ended get their result;
-  the execute callback only awaits that. Feedback at `action_monitor_rate`.
+  the execute callback only awaits that. Feedback at `action_monitor_rate`, and a last one
+  as a goal succeeds: its state at the end, `index` past the last point.
 * `<node>/controller_state` (control_msgs/msg/JointTrajectoryControllerState) of every axis at
   `state_publish_rate` (reference = the command, feedback = the actual position, error = the
   following error, output.effort = the amplifier command in volts), built only while somebody
@@ -134,15 +135,20 @@ class FollowJointTrajectoryServer:
             g = runner.active
             fb = runner.feedback(now)
             if g is not None and fb is not None:
-                g.handle.handle.publish_feedback(self.mf.feedback(
-                    self.node.get_clock().now().to_msg(), fb.names, fb.desired, fb.actual,
-                    fb.error, fb.next_point, now - g.t0))
+                self._send_feedback(g.handle.handle, fb)
+
+    def _send_feedback(self, handle, fb: fg.Feedback) -> None:
+        handle.publish_feedback(self.mf.feedback(
+            self.node.get_clock().now().to_msg(), fb.names, fb.desired, fb.actual, fb.error,
+            fb.next_point, fb.time))
 
     def _report(self, ended: list[fg.Ended]) -> None:
         log = self.node.get_logger()
         for e in ended:
             handle = e.handle.handle
             try:
+                if e.last is not None:          # (the last feedback: the goal at its end)
+                    self._send_feedback(handle, e.last)
                 if e.outcome == fg.SUCCEEDED:
                     handle.succeed()
                 elif e.outcome == fg.CANCELED and handle.is_cancel_requested:
