@@ -234,15 +234,19 @@ def node_env(module_domain):
 # 20-60 ms; the controller then does what it must (FEEDBACK_FAULT, loop opened) and the plant's
 # watchdog trips, and a test of something else (a trajectory's refusals, a parameter set) fails
 # on a move that the fault ended. A fixture that runs such a link sets `item.servo_link_stalled`
-# to the fault's log line when one came during the test; such a test that failed runs once more
-# (reported as a rerun, with the line). A test that fails without a stall, or fails again, fails.
+# to the fault's log line when one came during the test, and a tool that reports its nodes' fault
+# (draw) puts the line in the failure's text; such a test that failed runs once more (reported as
+# a rerun, with the line). A test that fails without a stall, or fails again, fails.
 def pytest_runtest_protocol(item, nextitem):
     from _pytest.runner import runtestprotocol
+
+    import kit
     item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
     reports = runtestprotocol(item, nextitem=nextitem, log=False)
-    stalled = getattr(item, 'servo_link_stalled', '')
-    if stalled and any(r.failed for r in reports):
-        failed = next(r for r in reports if r.failed)
+    failed = next((r for r in reports if r.failed), None)
+    stalled = getattr(item, 'servo_link_stalled', '') or (
+        failed is not None and kit.link_stall(item, str(failed.longrepr)))
+    if stalled and failed is not None:
         writer = item.config.pluginmanager.get_plugin('terminalreporter')
         if writer is not None:
             writer.write_line(f'\nRERUN {item.nodeid}: the servo link stalled during it '

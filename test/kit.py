@@ -58,14 +58,19 @@ def spin_for(client, seconds: float) -> None:
 SERVO_LINK_STALLS = ('FEEDBACK_FAULT: no new encoder sample', 'amplifier fault: no command')
 
 
+def link_stall(item, *texts: str) -> str:
+    """The first line of `texts` that says the servo link stalled ('' for none, or for a test
+    marked servo_link_under_test)."""
+    if item.get_closest_marker('servo_link_under_test') is not None:
+        return ''
+    return next((line for text in texts for line in text.splitlines()
+                 if any(s in line for s in SERVO_LINK_STALLS)), '')
+
+
 def note_link_stalls(request, *texts: str) -> None:
     """Note on the test the first line of `texts` (what the nodes logged during it) that says
-    the servo link stalled, unless the test is marked servo_link_under_test."""
-    if request.node.get_closest_marker('servo_link_under_test') is not None:
-        return
-    stalls = [line for text in texts for line in text.splitlines()
-              if any(s in line for s in SERVO_LINK_STALLS)]
-    request.node.servo_link_stalled = stalls[0] if stalls else ''
+    the servo link stalled."""
+    request.node.servo_link_stalled = link_stall(request.node, *texts)
 
 
 @dataclass

@@ -63,6 +63,7 @@ class NodeProcess:
         for k, v in (params or {}).items():
             args += ['-p', f'{k}:={v}']
         self.args = args
+        self.log_path = log_path
         self.log = open(log_path, 'w') if log_path else subprocess.DEVNULL
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
                                      env=source_env(env), preexec_fn=child_preexec)
@@ -96,6 +97,19 @@ class NodeProcess:
         if not isinstance(self.log, int):        # (subprocess.DEVNULL)
             self.log.close()
         return self.proc.returncode
+
+
+def first_fault(nodes) -> str:
+    """The first line the nodes logged that says an axis faulted (a loop opened, an amplifier
+    tripped), from their log files; '' when none did or they log nowhere."""
+    for n in nodes:
+        if n.log_path is None:
+            continue
+        with open(n.log_path, errors='replace') as f:
+            for line in f:
+                if ('[ERROR]' in line or '[WARN]' in line) and 'fault' in line.lower():
+                    return line.strip()
+    return ''
 
 
 def log_file(log_dir, node: str) -> pathlib.Path | None:

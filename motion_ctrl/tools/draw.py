@@ -168,7 +168,7 @@ def main(argv=None) -> int:
 
     import msg_defs as md
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import start_slide
+    from motion_ctrl.ros.processes import first_fault, start_slide
 
     out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/draw-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
@@ -225,7 +225,8 @@ def main(argv=None) -> int:
             client.spin_for(0.05)
             samples = np.array(truth).reshape(-1, 3)
             if not done or len(samples) == 0:
-                print(f'{shape:<8}did not finish (see the logs in {out})')
+                why = first_fault(nodes) or 'no fault logged'
+                print(f'{shape:<8}did not finish: {why} (the logs are in {out})')
                 code = 1
                 continue
             r = judge(points, start, samples[:, 0] - t0, samples[:, 1:])
