@@ -7,17 +7,18 @@ import sys
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-# DDS discovery stays on this host, and each test run gets its own domain
-# (never 0) so parallel runs don't see each other. Set before any rclpy.init()
-# and inherited by the nodes tests start as subprocesses.
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-if os.environ.get('ROS_DOMAIN_ID', '0') in ('', '0'):
-    # 1..101: higher domains' DDS ports reach Linux's ephemeral port range.
-    os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
-
 # Tests import the source tree, not the copy installed in .venv.
 if sys.path[0] != REPO_ROOT:
     sys.path.insert(0, REPO_ROOT)
+
+# DDS discovery stays on this host, each test run gets its own domain (never 0) so parallel
+# runs don't see each other, and the tests' participants the nodes' loopback-UDP profile (they
+# find the nodes they start as soon as those come up), as every tool that starts its own nodes
+# (motion_ctrl.ros.ros_env.private_domain). Set before any rclpy.init() and inherited by the
+# nodes tests start as subprocesses.
+from motion_ctrl.ros import ros_env  # noqa: E402
+
+ros_env.private_domain()
 
 
 def _compiled_stale() -> list[str]:

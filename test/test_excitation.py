@@ -17,6 +17,20 @@ def _band_share(x, fs, lo, hi, nperseg=None):
     return p[inside].sum() / p.sum()
 
 
+def test_the_chirp_and_the_sequence_are_scipys():
+    """Computed with numpy (scipy.signal's import would cost the controller's start 1.6 s), they
+    are scipy.signal's chirp and max_len_seq, value for value."""
+    for band, duration in (((5.0, 300.0), 4.0), ((2.0, 200.0), 5.0), ((0.5, 499.0), 2.0)):
+        n = round(duration * FS)
+        t = np.arange(n) / FS
+        ref = sps.chirp(t, f0=band[0], t1=n / FS, f1=band[1], method='logarithmic', phi=-90.0)
+        np.testing.assert_allclose(ex.log_chirp(1.0, band, duration, FS).signal, ref,
+                                   rtol=0, atol=1e-9)
+    for nbits in range(2, 17):
+        np.testing.assert_array_equal(ex.max_len_seq(nbits), sps.max_len_seq(nbits)[0])
+    assert set(ex.MLS_TAPS) == set(range(2, 33))
+
+
 def test_log_chirp_is_tick_exact_starts_at_zero_and_stays_in_band():
     c = ex.log_chirp(2.0, (5.0, 300.0), 4.0, FS)
     assert c.kind == 'log_chirp' and c.ticks == 4000 and c.duration == 4.0

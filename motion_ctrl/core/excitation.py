@@ -9,11 +9,11 @@ Every signal is a plain array with one value per servo tick: sample n is the val
 t = n / sample_rate, n = 0 .. round(duration · sample_rate) − 1. Nothing depends on a clock, so
 a servo tick reads `excitation.at(tick)` and two runs inject exactly the same volts.
 
-* :func:`log_chirp` — a logarithmic sine sweep (``scipy.signal.chirp(method='logarithmic')``):
+* :func:`log_chirp` — a logarithmic sine sweep (as ``scipy.signal.chirp(method='logarithmic')``):
   equal time per decade; optional amplitude shaping ∝ f^amplitude_exponent (−1: the 1/f shaping
   that keeps a rigid axis' velocity-level response even; +1 or +2: less displacement at the low
   end of a position measurement).
-* :func:`prbs` — a maximum-length pseudo-random binary sequence (``scipy.signal.max_len_seq``)
+* :func:`prbs` — a maximum-length pseudo-random binary sequence (as ``scipy.signal.max_len_seq``)
   of ±amplitude, each bit held `hold_ticks` servo ticks: flat spectrum up to ~0.44 · rate /
   hold_ticks, one period long enough for the band's low end. Periodic: averaging over whole
   periods (Welch with nperseg = period_ticks) has no leakage.
@@ -24,6 +24,10 @@ a servo tick reads `excitation.at(tick)` and two runs inject exactly the same vo
 Library functions, no rclpy: an axis injects them in its servo tick (`Axis.excite`,
 motion_ctrl.core.gather); :func:`from_registers` builds the one an axis's `excitation_*`
 registers describe (the controller's `<axis>/excite` service).
+
+The chirp and the sequence are scipy.signal's, computed here with numpy from the same formula
+and the same taps (test_excitation compares them with scipy's, value for value): importing
+scipy.signal takes ~1.6 s, which the controller paid at every start for two short functions.
 """
 from __future__ import annotations
 
@@ -34,6 +38,15 @@ import numpy as np
 
 __all__ = ['Excitation', 'Segment', 'log_chirp', 'prbs', 'stepped_sine', 'from_registers',
            'PRBS_BAND_FRACTION', 'SIGNALS']
+
+#: Taps of the maximum-length shift register per number of bits (scipy.signal.max_len_seq's:
+#: the first listed for each length by newwaveinstruments.com's m-sequence table).
+MLS_TAPS = {2: (1,), 3: (2,), 4: (3,), 5: (3,), 6: (5,), 7: (6,), 8: (7, 6, 1), 9: (5,),
+            10: (7,), 11: (9,), 12: (11, 10, 4), 13: (12, 11, 8), 14: (13, 12, 2), 15: (14,),
+            16: (15, 13, 4), 17: (14,), 18: (11,), 19: (18, 17, 14), 20: (17,), 21: (19,),
+            22: (21,), 23: (18,), 24: (23, 22, 17), 25: (22,), 26: (25, 24, 20),
+            27: (26, 25, 22), 28: (25,), 29: (27,), 30: (29, 28, 7), 31: (28,),
+            32: (31, 30, 10)}
 
 #: A PRBS held N ticks is flat to within 3 dB up to this fraction of rate / N
 #: (|sin(π f N / fs) / (N sin(π f / fs))|² = ½ at f ≈ 0.443 fs / N).
@@ -155,9 +168,10 @@ def log_chirp(amplitude, band, duration, sample_rate, *, amplitude_exponent=0.0)
                          f'({1.0 / lo:g} s at {lo:g} Hz)')
     t = np.arange(n) / fs
     sweep = n / fs      # the sweep's own length: exactly the ticks generated
-    from scipy import signal as sps   # here (~0.6 s): the controller imports it before its loop
-    wave = sps.chirp(t, f0=lo, t1=sweep, f1=hi, method='logarithmic', phi=-90.0)
     freq = lo * (hi / lo) ** (t / sweep)
+    # the phase is the integral of 2π f(t); cos(phase − 90°) starts at 0 V
+    phase = 2.0 * np.pi * sweep / math.log(hi / lo) * lo * ((hi / lo) ** (t / sweep) - 1.0)
+    wave = np.cos(phase + np.deg2rad(-90.0))
     return Excitation('log_chirp', _shape(freq, amp, p, lo, hi) * wave, fs, amp, (lo, hi))
 
 
@@ -188,8 +202,7 @@ def prbs(amplitude, band, duration, sample_rate, *, hold_ticks=None, nbits=None)
         nbits = _int('nbits', nbits, 2)
         if nbits > 32:
             raise ValueError(f'nbits must be <= 32, got {nbits}')
-    from scipy import signal as sps
-    seq = sps.max_len_seq(nbits)[0].astype(float) * 2.0 - 1.0
+    seq = max_len_seq(nbits).astype(float) * 2.0 - 1.0
     period = seq.size * hold
     if period > n:
         raise ValueError(f'duration {dur:g} s is shorter than one PRBS period '
@@ -197,6 +210,22 @@ def prbs(amplitude, band, duration, sample_rate, *, hold_ticks=None, nbits=None)
     one = np.repeat(seq, hold)
     wave = np.resize(one, n) * amp
     return Excitation('prbs', wave, fs, amp, (lo, hi), period_ticks=period, hold_ticks=hold)
+
+
+def max_len_seq(nbits: int) -> np.ndarray:
+    """The 2^nbits − 1 bits (0/1) of the maximum-length sequence from a shift register of ones
+    with the taps MLS_TAPS (scipy.signal.max_len_seq(nbits)[0]): bit k + nbits is bit k
+    exclusive-or the bits k + tap."""
+    taps = MLS_TAPS[nbits]
+    n = (1 << nbits) - 1
+    bits = bytearray(n + nbits)
+    bits[:nbits] = b'\x01' * nbits
+    for k in range(n):
+        b = bits[k]
+        for tap in taps:
+            b ^= bits[k + tap]
+        bits[k + nbits] = b
+    return np.frombuffer(bytes(bits[:n]), dtype=np.uint8)
 
 
 def stepped_sine(amplitude, band, duration, sample_rate, *, points=20, settle_cycles=3,

@@ -82,7 +82,7 @@ STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
 # at 100 Hz took the loop from 995 to ~500 Hz). 64 KiB holds hundreds of axes.
 MAX_TARGET_BYTES = 65536
 STOP_DEADLINE = 3.0      # s from SIGINT/SIGTERM to exit, whatever ROS's teardown is doing
-PRELOAD = ('scipy.interpolate', 'scipy.signal')   # imported before the loop runs (__init__)
+PRELOAD = ('scipy.interpolate',)     # imported before the loop runs (__init__)
 WATCHDOG = 5.0           # s the spin loop may stand still before the process ends (exit 1)
 MAX_TARGET_NAMES = 256
 # A trajectory is checked in the callback, between two ticks: ~16 µs per point with
@@ -160,10 +160,10 @@ class ControllerNode(ros_params.RegisterNode):
             self._on_target_velocity, 'target_velocity'), 10, raw=True)
         # Trajectories are decoded, checked and built on a thread of their own in real time
         # (rclpy's decoding of 400 points alone takes ~5 ms), and started by the next tick.
-        # What they and the excitation runs use of scipy is imported now, before the loop runs
-        # (~0.6 s of start-up): imported by the first trajectory on that thread, it held the
-        # GIL in long C calls for ~0.4 s, and both loops stood still 50-105 ms (the plant
-        # "held up" in 15 of 16 `draw` starts at real-time priority, both threads FIFO 30).
+        # What they use of scipy is imported now, before the loop runs (~0.7 s of start-up):
+        # imported by the first trajectory on that thread, it held the GIL in long C calls for
+        # ~0.4 s, and both loops stood still 50-105 ms (the plant "held up" in 15 of 16 `draw`
+        # starts at real-time priority, both threads FIFO 30).
         for module in PRELOAD:
             importlib.import_module(module)
         self.create_subscription(JointTrajectory, md.JOINT_TRAJECTORY, self._on_raw_trajectory,

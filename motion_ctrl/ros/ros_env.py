@@ -4,7 +4,9 @@ that uses ROS.
 DDS discovery stays on this host unless the user chose otherwise
 (ROS_AUTOMATIC_DISCOVERY_RANGE; Kilted ignores ROS_LOCALHOST_ONLY). Tools that start their own
 nodes (demo, tests, benchmark) also get a ROS_DOMAIN_ID of their own when none (or 0) is set, so
-parallel runs on one machine don't see each other. Call before rclpy.init().
+parallel runs on one machine don't see each other, and the loopback-UDP profile of the nodes'
+own processes (`loopback_udp`), so they find the nodes they start within half a second of their
+coming up. Call before rclpy.init().
 """
 import fcntl
 import itertools
@@ -20,8 +22,10 @@ def local_discovery() -> None:
 
 
 def private_domain() -> int:
-    """Pick a domain from the pid (1..101: higher domains reach the ephemeral port range)."""
+    """Pick a domain from the pid (1..101: higher domains reach the ephemeral port range); this
+    process's participants get the nodes' profile (loopback_udp)."""
     local_discovery()
+    os.environ.update(loopback_udp())
     if os.environ.get('ROS_DOMAIN_ID', '0') in ('', '0'):
         os.environ['ROS_DOMAIN_ID'] = str(os.getpid() % 101 + 1)
     return int(os.environ['ROS_DOMAIN_ID'])
@@ -53,7 +57,7 @@ def loopback_udp(environ=os.environ) -> dict:
     """The environment entry that gives a process's participants the loopback-UDP profile; {}
     when the user chose a Fast DDS profile file of their own (theirs is kept). Fast DDS reads it
     once per process, when its first participant is made: set it before the first node."""
-    if any(environ.get(k) for k in PROFILES_ENV):
+    if any(environ.get(k) and environ.get(k) != LOOPBACK_UDP for k in PROFILES_ENV):
         return {}
     return {PROFILES_ENV[0]: LOOPBACK_UDP}
 
