@@ -283,7 +283,7 @@ def test_bad_params_file_exits_with_one_line(bad_runs, case):
     assert code not in (0, None, -9), (code, err)
     assert elapsed < 20.0       # ~1.5 s alone (mostly imports); 6 at once on a loaded 2-core VM
     assert 'Traceback' not in err + out, err
-    assert len(stderr) == 1, err
+    assert len(stderr) == 1, (code, err, out)
     assert parameter in stderr[0] and str(bad) in stderr[0], stderr[0]
 
 
