@@ -977,6 +977,7 @@ def test_diagnostics_report_the_loop_as_its_ticks_show_it(axis):
         # The longest wait for a new encoder sample stayed inside the watchdog (no fault).
         assert 0.0 <= float(values['feedback_wait_max_ms']) <= \
             1e3 * registers.CONTROLLER_GLOBAL['feedback_timeout'].default, values
+        assert 0 <= int(values['ticks_without_new_sample']) <= len(dt), values
     axis_status = [st for st in msgs[-1].status if st.name.endswith('axis x')]
     assert len(axis_status) == 1
     axis_values = {kv.key: kv.value for kv in axis_status[0].values}

@@ -105,6 +105,22 @@ def test_a_sample_older_than_the_one_in_hand_is_dropped():
     assert TIMEOUT / T < n <= TIMEOUT / T + 2
 
 
+def test_ticks_that_find_no_new_sample_are_counted_and_hold_the_output():
+    """/diagnostics' ticks_without_new_sample: a tick whose sample came just after it (or not
+    at all) holds the output; the window counts such ticks, once a tick."""
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    loop.stats.reset_window()
+    t = 1.0
+    loop.feedback('x', 0, 10, t)
+    held = loop.tick(t).outputs[0]
+    for k in (1, 2, 3):                               # no sample for three ticks
+        assert loop.tick(t + k * T).outputs[0] == held
+    loop.feedback('x', 0, 10, t + 4 * T)
+    loop.tick(t + 4 * T)
+    assert loop.stats.summary()['ticks_without_new_sample'] == 3
+
+
 def test_a_late_tick_counts_at_most_two_periods():
     """A controller held up 50 ms (its samples waiting in its queue) does not fault: the late
     tick counts 2 ms of waiting, not 50."""

@@ -27,6 +27,9 @@ class LoopStats:
         # Longest servo time an axis waited for a new encoder sample (the feedback watchdog's
         # measure: FEEDBACK_FAULT when it exceeds feedback_timeout).
         self.feedback_wait_max = 0.0
+        # Ticks that found no new encoder sample (the output held; in real time a sample that
+        # came just after its tick, or none): how well the ticks meet the encoder stream.
+        self.ticks_without_sample = 0
         # numpy's first percentile costs ~8 ms here (set-up done once per process): paid now,
         # not in the servo thread's first /diagnostics, where it held the ticks 13-20 ms and
         # tripped the amplifier's 10 ms command watchdog at every start.
@@ -67,6 +70,7 @@ class LoopStats:
             'tick_work_max_us': float(w.max() * 1e6) if len(w) else 0.0,
             'overruns_total': self.overruns_total,
             'feedback_wait_max_ms': self.feedback_wait_max * 1e3,
+            'ticks_without_new_sample': self.ticks_without_sample,
         } | ({'feedback_age_p50_us': float(np.percentile(ages, 50) * 1e6),
               'feedback_age_p99_us': float(np.percentile(ages, 99) * 1e6)}
              if self.na else {})
@@ -74,6 +78,7 @@ class LoopStats:
     def reset_window(self) -> None:
         self.n = self.nw = self.na = 0
         self.feedback_wait_max = 0.0
+        self.ticks_without_sample = 0
 
 
 def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
