@@ -14,8 +14,9 @@ is printed as it came (its length too: a refusal quotes a size, never the value)
   count before it is decoded;
 * `table 100,000 entries`: x.leadscrew_table set to 100,000 entries, once a second: refused by
   its size;
-* `param load 900 kB`: `ros2 param load` (AsyncParameterClient.load_parameter_file, as ros2cli
-  does it) of a 900 kB params file (a table), once a second;
+* `param load 900 kB`: what `ros2 param load` of a 900 kB params file (a table) sends
+  (AsyncParameterClient.load_parameter_file: the file read by the client, then one
+  set_parameters request), once a second;
 * `string 1 MB`: x.feedback set to a 1,000,000-character string, once a second.
 """
 from __future__ import annotations
@@ -44,12 +45,13 @@ def _stamp(msg) -> float:
 class Floods:
     """The cases, on a SlideClient of a running slide (plant and controller started)."""
 
-    def __init__(self, client, axis: str = 'x', print_=print):
+    def __init__(self, client, axis: str = 'x', print_=print, log_path=None):
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.parameter_client import AsyncParameterClient
         from sensor_msgs.msg import JointState
         import msg_defs as md
         self.client, self.axis, self.print = client, axis, print_
+        self.log_path = log_path          # the controller's log: refusals not answered to us
         self.diag: list[tuple[float, float]] = []       # (stamp, rate_hz)
         client.create_subscription(DiagnosticArray, md.DIAGNOSTICS, self._on_diag, 10)
         self.unread = client.create_publisher(JointState, 'floods_unread_target', 10)
@@ -99,8 +101,14 @@ class Floods:
             path.write_text(f'controller:\n  ros__parameters:\n    {a}.leadscrew_table: '
                             f'[{entries}]\n')
             size = path.stat().st_size
-            self._case(f'param load {size / 1000:.0f} kB', lambda: self._repeat(
-                lambda: self._load(str(path))))
+            # What `ros2 param load` sends (AsyncParameterClient.load_parameter_file: the file
+            # read here, then one set_parameters request), the file read once, beforehand:
+            # PyYAML takes seconds for it, in this process, not the controller's.
+            from rclpy.parameter import parameter_dict_from_yaml_file
+            loaded = list(parameter_dict_from_yaml_file(
+                str(path), False, target_nodes=['controller']).values())
+        self._case(f'param load {size / 1000:.0f} kB', lambda: self._repeat(
+            lambda: self._set(*loaded)))
         string = Parameter(f'{a}.feedback', Parameter.Type.STRING, 'm' * 1_000_000)
         self._case('string 1 MB', lambda: self._repeat(lambda: self._set(string)))
         return self.rows
@@ -126,7 +134,11 @@ class Floods:
             target = here + (0.002 if here < 0.01 else -0.002)
             if c.move({a: target}) is not None:
                 landing = (c.load_position(a) - target) * LOAD_COUNTS_PER_M
-        row = (name, before, during, landing, self.reason or log or '')
+        if log and self.log_path is not None:     # the controller's last line saying so
+            lines = [ln for ln in pathlib.Path(self.log_path).read_text().splitlines()
+                     if log in ln]
+            self.reason = lines[-1].split(': ', 1)[-1] if lines else ''
+        row = (name, before, during, landing, self.reason)
         self.rows.append(row)
         self.print(format_row(row), flush=True)
 
@@ -149,16 +161,9 @@ class Floods:
             send()
             self.client.spin_until(lambda: False, max(0.0, start + k + 1 - time.monotonic()))
 
-    def _set(self, parameter) -> None:
-        future = self.params.set_parameters([parameter])
+    def _set(self, *parameters) -> None:
+        future = self.params.set_parameters(list(parameters))
         self.client.spin_until(future.done, 5.0)
-        result = future.result() if future.done() else None
-        if result is not None:
-            self.reason = result.results[0].reason
-
-    def _load(self, path: str) -> None:
-        future = self.params.load_parameter_file(path)
-        self.client.spin_until(future.done, 10.0)
         result = future.result() if future.done() else None
         if result is not None:
             self.reason = result.results[0].reason
@@ -207,7 +212,7 @@ def main(realtime_priority: int = 0, servo_bus_setting: str = 'auto', out=None) 
         if not client.wait_ready(30.0):
             print(f'floods: the nodes did not come up ({client.not_ready()})')
             return 1
-        floods = Floods(client)
+        floods = Floods(client, log_path=out / 'controller.log')
         print(HEADER, flush=True)
         rows = floods.run()
     finally:
