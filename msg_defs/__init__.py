@@ -26,6 +26,7 @@ _LAZY = {
     'MalformedMessage': 'msg_defs.joint_state', 'JointStateStream': 'msg_defs.joint_state',
     'Stream': 'msg_defs.joint_state',
     'joint_trajectory': 'msg_defs.trajectory', 'read_joint_trajectory': 'msg_defs.trajectory',
+    'trajectory_counts': 'msg_defs.trajectory',
     'GATHER_QOS': 'msg_defs.qos', 'gather_message': 'msg_defs.gather',
     'read_gather': 'msg_defs.gather',
 }
@@ -50,5 +51,6 @@ __all__ = [
     'SERVO_QOS', 'SERVO_READ_QOS', 'STATUS_QOS', 'STATUS_CHANGES_QOS', 'LATCHED_QOS',
     'STATUS_DEPTH', 'joint_state', 'read_joint_state',
     'MalformedMessage', 'JointStateStream', 'Stream', 'joint_trajectory',
-    'read_joint_trajectory', 'gather_topic', 'GATHER_QOS', 'gather_message', 'read_gather',
+    'read_joint_trajectory', 'trajectory_counts', 'gather_topic', 'GATHER_QOS',
+    'gather_message', 'read_gather',
 ]

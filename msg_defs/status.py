@@ -50,3 +50,6 @@ class Status(enum.IntFlag):
     LIMIT = 1 << 16
     # sampled dual-loop correction in progress
     CORRECTING = 1 << 17
+    # measured velocity of the motor or the slide beyond overspeed_velocity (a drive's overspeed
+    # fault): loop opened, output 0, needs reset. Added after SPEC's table (bits 0-17 unchanged).
+    OVERSPEED = 1 << 18

@@ -3,6 +3,8 @@
 Reading only converts the message into plain lists; the whole trajectory is checked by the core
 (motion_ctrl.core.trajectory), which says which axis, point and limit a refusal is about.
 """
+import struct
+
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 
@@ -37,3 +39,38 @@ def read_joint_trajectory(msg) -> dict:
         'velocities': [list(p.velocities) for p in points],
         'accelerations': [list(p.accelerations) for p in points],
     }
+
+
+def trajectory_counts(data: bytes) -> tuple[int, int] | None:
+    """(joint names, points) of a serialized JointTrajectory, read from its CDR without decoding
+    it (a few header fields and the names' lengths: microseconds for any size), so that an
+    oversized one is refused by its counts before rclpy builds a Python object per point. None
+    when `data` is not little- or big-endian CDR of that shape (it is then decoded and refused
+    as such)."""
+    if len(data) < 16 or data[0] != 0 or data[1] not in (0, 1):
+        return None
+    u32 = struct.Struct('<I' if data[1] == 1 else '>I').unpack_from
+    pos = 4 + 8                                  # encapsulation; stamp: sec, nanosec
+
+    def read_u32() -> int:
+        nonlocal pos
+        pos = 4 + ((pos - 4 + 3) & ~3)           # aligned to 4 from the body's start
+        if pos + 4 > len(data):
+            raise ValueError
+        (v,) = u32(data, pos)
+        pos += 4
+        return v
+
+    try:
+        length = read_u32()                       # frame_id (the length counts its NUL)
+        pos += length
+        names = read_u32()
+        if names > (len(data) - pos) // 4:
+            return None
+        for _ in range(names):
+            length = read_u32()
+            pos += length
+        points = read_u32()
+    except (ValueError, struct.error):
+        return None
+    return names, points

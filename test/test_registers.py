@@ -143,3 +143,27 @@ def test_core_objects_start_with_the_tables_defaults():
         for f in dataclasses.fields(cfg):
             assert f.name not in registers or f.name in CONTROLLER_AXIS, f'{cfg.__name__}.{f.name}'
             assert f.default is dataclasses.MISSING, f'{cfg.__name__}.{f.name} has a default'
+
+
+def test_oversized_values_are_refused_by_their_size_not_echoed():
+    """The input budgets (MAX_TABLE_ENTRIES, MAX_STRING_CHARS): a 100,000-entry table and a
+    1 MB string are refused naming the register, their size and the limit, in a line of a few
+    dozen characters (the value is never quoted back); typing a value as declared leaves an
+    oversized one as it is. A short bad value is still quoted."""
+    table = R.CONTROLLER_AXIS['leadscrew_table']
+    big = [1e-6] * 100_000
+    assert table.check(big) == (f'leadscrew_table: 100000 entries (at most '
+                                f'{R.MAX_TABLE_ENTRIES})')
+    assert table.check([1e-6] * R.MAX_TABLE_ENTRIES) is None
+    assert table.as_declared(['1e-06'] * 100_000) == ['1e-06'] * 100_000   # left, refused
+    megabyte = 'm' * 1_000_000
+    for name in ('feedback', 'kp', 'leadscrew_table'):
+        reason = R.CONTROLLER_AXIS[name].check(megabyte)
+        assert reason == (f'{name}: a 1000000-character string (at most '
+                          f'{R.MAX_STRING_CHARS})'), reason
+        assert R.CONTROLLER_AXIS[name].as_declared(megabyte) is megabyte
+    long_list = R.CONTROLLER_AXIS['kp'].check([0.0] * 100)
+    assert long_list == 'kp: expected a floating-point number, got a 100-entry list'
+    assert "'motr'" in R.CONTROLLER_AXIS['feedback'].check('motr')
+    assert R.CONTROLLER_GLOBAL['axes'].check(['x', 'y' * 5000]).startswith(
+        'axes[1]: a 5000-character string')

@@ -149,6 +149,36 @@ def test_scheduled_target_starts_at_its_stamp_or_is_cancelled_by_a_stop():
     assert not loop.axes['x'].status & S.MOVING and loop.scheduled == []
 
 
+def test_targets_posted_between_ticks_the_latest_of_each_axis_wins():
+    """A stream of targets faster than the loop (a 5 kHz publisher: five a tick) costs one
+    re-plan per tick: only the latest posted of each axis is tried, at the next tick; one
+    superseded before it is never tried (an out-of-limit target followed by a valid one leaves
+    no LIMIT and no refusal); a refused latest one is reported by the tick; a jog posted after a
+    target replaces it."""
+    loop = _loop()
+    _run(loop, 0.0, 1.0)
+    axis = loop.axes['x']
+    loop.post('x', 0.9)                              # beyond soft_limit_max (0.5 m)
+    for k in range(1, 6):
+        loop.post('x', 0.001 * k)
+    assert axis.target is None                       # nothing before the tick
+    [tick] = _run(loop, 1.0, 1.0 + T)
+    assert tick.refused == [] and not axis.status & S.LIMIT
+    assert axis.target == 0.005 and axis.status & S.MOVING
+    loop.post('x', 0.003)
+    loop.post('x', 0.9)
+    [tick] = _run(loop, 1.0 + T, 1.0 + 2 * T)
+    assert [(w, a) for w, a, _ in tick.refused] == [('target_position', 'x')], tick.refused
+    assert 'outside the soft limits' in tick.refused[0][2] and axis.target == 0.005
+    loop.post('x', 0.002)
+    loop.post('x', 0.01, jog=True)
+    _run(loop, 1.0 + 2 * T, 1.0 + 3 * T)
+    assert axis.profile.kind == 'velocity' and axis.profile.target_velocity == 0.01
+    loop.post('x', 0.004)
+    log, refused = loop.flush()                      # (before another command: now)
+    assert refused == [] and axis.target == 0.004 and loop.pending == {}
+
+
 def test_register_sets_apply_together_at_the_next_tick_or_before_a_move():
     loop = _loop()
     _run(loop, 0.0, 1.0)

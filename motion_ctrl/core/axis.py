@@ -3,7 +3,10 @@ PMAC / Galil / RMC servo interrupt.
 
 Each tick (`update`):
  1. read both encoders, estimate velocities over the real dt (rcl timers skip late ticks);
+    the motor's beyond overspeed_velocity opens the loop (OVERSPEED, a drive's overspeed fault);
  2. step the profile (move generator + Galil IT smoothing); a jog is kept inside the soft limits;
+    after a stall of the loop the motion is planned again from the measured state instead
+    (STALL_PERIODS: no catch-up sprint);
  3. backlash / leadscrew compensation (PMAC Ixx85..87, BLCOMP, COMP) on loops that close on the
     motor encoder; hidden from the reported position;
  4. pick the feedback: motor, load, dual (Galil DV: position on the load, damping on the motor)
@@ -51,6 +54,19 @@ _LIMIT: Final = int(Status.LIMIT)
 _CORRECTING: Final = int(Status.CORRECTING)
 _AT_VELOCITY: Final = int(Status.MOTION_AT_VELOCITY)
 _IN_FINE: Final = int(Status.IN_FINE_POSITION)
+_OVERSPEED: Final = int(Status.OVERSPEED)
+
+# A tick more than this many servo periods after the previous one follows a stall of the loop
+# (the process held up, SIGSTOPped, swapped out): the motion is planned again from the measured
+# state (Profile.rebase) instead of stepping the plan on by the time lost, which would put the
+# command that far ahead of a slide that stood still meanwhile (the amplifier's watchdog braked
+# it after its command_timeout) and drive it at the output limit to catch up. A path keeps its
+# time base and is stepped on by this much only (as LinuxCNC's planner steps its own cycle time
+# on a late servo thread, never catching up). Late ticks up to this are stepped as they come:
+# the slide ran on meanwhile on the held command.
+STALL_PERIODS: Final = 5
+# overspeed_velocity 0: this many times max_velocity.
+OVERSPEED_RATIO: Final = 1.5
 
 _S_IDLE: Final = SampledCorrection.IDLE
 _S_CORRECTING: Final = SampledCorrection.CORRECTING
@@ -145,6 +161,8 @@ class Axis(AxisCommands):
         self._max_jerk: float = r['max_jerk']
         self._stop_dec: float = r['stop_deceleration']
         self._estop_dec: float = r['estop_deceleration']
+        self._overspeed: float = r['overspeed_velocity'] or OVERSPEED_RATIO * r['max_velocity']
+        self._stall: float = STALL_PERIODS * T
         self.hunting.configure(r['hunting_reversals'])
         if old and old['feedback'] != feedback and self.homed:
             self._rehome_command()
@@ -172,7 +190,7 @@ class Axis(AxisCommands):
 
     @property
     def faults(self) -> Status:
-        """FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT: the loop is open until reset."""
+        """FOLLOWING_ERROR_FATAL | FEEDBACK_FAULT | OVERSPEED: the loop is open until reset."""
         return status_word(self._faults)
 
     @property
@@ -283,6 +301,9 @@ class Axis(AxisCommands):
             self._read_encoders(motor_counts, load_counts, sample_dt)
         if not self.enabled:
             return self._update_open()
+        if abs(self.motor_vel) > self._overspeed:
+            self._overspeed_fault()
+            return 0.0
         self._step_command(dt, age)
         if self._following_error_fatal():
             return 0.0
@@ -314,7 +335,10 @@ class Axis(AxisCommands):
         compensation on a motor-side loop, and the feedback each term closes on; the following
         error against the command at the sample's time."""
         p = self.profile
-        p.step(dt)
+        if dt > self._stall:
+            self._after_stall()
+        else:
+            p.step(dt)
         if self._guard:
             self._guard_tick(dt)
         position = p.position
@@ -335,6 +359,32 @@ class Axis(AxisCommands):
         self._loop_cmd = loop_cmd
         self._loop_pos = loop_pos
         self.following_error = loop_cmd - loop_pos
+
+    def _after_stall(self) -> None:
+        """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
+        measured state, in the profile's frame; a path stepped on by STALL_PERIODS only."""
+        p = self.profile
+        if self._motor_side:
+            position, velocity = self.motor_pos - self.correction, self.motor_vel
+        else:
+            position = self.load_pos
+            velocity = self.load_vel if self._vel_on_load else self.motor_vel
+        if not (p.moving and p.rebase(position, velocity)):
+            p.step(self._stall)
+
+    def _overspeed_fault(self) -> None:
+        """1a. The measured motor velocity (in load units) beyond overspeed_velocity: a drive's
+        overspeed fault, which watches the motor (Kollmorgen VOSPD / F08, CiA 402 max motor
+        speed): the loop opens at once, output 0, OVERSPEED until reset. (Not the slide's: on
+        the load loop's limit cycle across the backlash the slide bounces in the gap at twice
+        the motor's speed, 0.23 m/s in the headline table's `load` row.)"""
+        self._open_loop()
+        self._faults |= _OVERSPEED
+        self.fault_reason = (f'OVERSPEED: motor velocity {self.motor_vel:+.4f} m/s beyond '
+                             f'overspeed_velocity {self._overspeed:g} m/s')
+        self._cancel('OVERSPEED')
+        self.settling.abort()
+        self._compose(self.settling.open_loop_bits())
 
     def _following_error_fatal(self) -> bool:
         """5. Beyond following_error_fatal (PMAC Ixx11) the loop opens (the warning, Ixx12, is a
@@ -438,7 +488,7 @@ class Axis(AxisCommands):
           STOPPED, ESTOPPED, ABORTED: Settling (`motion_bits`); in the sampled loop
           SampledCorrection.motion_bits decides MOTION_DONE and IN_FINE_POSITION, and with the
           loop open Settling.open_loop_bits;
-        * FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT: the axis's faults (until reset);
+        * FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT, OVERSPEED: the axis's faults (until reset);
         * LIMIT: the commands (a refused target, a jog braked at a soft limit);
         * ENABLED: the loop state; FOLLOWING_ERROR_WARNING: this tick's following error (Ixx12);
         * OUTPUT_SATURATED, INTEGRATOR_HELD: the servo law;

@@ -16,8 +16,8 @@ Motion commands and the status word (RMP semantics, see motion_ctrl.core.settlin
   ESTOPPED + MOTION_DONE at rest. `abort()`: loop open at once, output 0 from this very moment,
   ENABLED cleared, ABORTED + MOTION_DONE.
 * `enable(False)` opens the loop (output 0, MOTION_DONE: nothing is being moved); `enable(True)`
-  closes it at the present position; `reset()` clears FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT and
-  LIMIT, and on an open loop ABORTED; the loop stays open until `enable(True)`.
+  closes it at the present position; `reset()` clears FOLLOWING_ERROR_FATAL, FEEDBACK_FAULT,
+  OVERSPEED and LIMIT, and on an open loop ABORTED; the loop stays open until `enable(True)`.
 * An amplifier fault (`Axis.drive_fault`, from the hardware) aborts the axis and refuses
   enable and motion with the drive's reason until `reset()`.
 
@@ -383,10 +383,10 @@ class AxisCommands:
         return True, ''
 
     def reset(self):
-        """Clear faults (fatal following error, feedback fault, amplifier fault) and LIMIT; on an
-        open loop also ABORTED / STOPPED / ESTOPPED. The loop stays open (enable closes it); a
-        closed loop and its motion are not touched. A fault whose cause persists comes back at
-        the next tick."""
+        """Clear faults (fatal following error, feedback fault, overspeed, amplifier fault) and
+        LIMIT; on an open loop also ABORTED / STOPPED / ESTOPPED. The loop stays open (enable
+        closes it); a closed loop and its motion are not touched. A fault whose cause persists
+        comes back at the next tick."""
         self._faults = 0
         self._sticky = 0
         self.drive_fault_reason = ''

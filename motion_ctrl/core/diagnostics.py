@@ -102,7 +102,8 @@ def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
     arr.status.append(loop)
     for name, axis in axes.items():
         st = DiagnosticStatus(name=f'{node_name}: axis {name}', hardware_id=name)
-        faults = axis.status & (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT)
+        faults = axis.status & (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
+                                | Status.OVERSPEED)
         drive = axis.drive_fault_reason
         hunting = axis.hunting
         st.level = DiagnosticStatus.ERROR if faults or drive else \

@@ -238,6 +238,28 @@ class Profile:
             raise ValueError(f'hold position must be finite, got {position!r}')
         self._reset(float(position))
 
+    def rebase(self, position: float, velocity: float) -> bool:
+        """After a stall of the servo loop: the present segment planned again, to the same goal
+        under the same limits, from the measured state (`position`, `velocity`, acceleration
+        0), so that the command neither jumps ahead by the time lost nor asks for speed to
+        win it back (the catch-up rule, core.axis STALL_PERIODS). A move, jog or stop only;
+        a path keeps its time base (the caller holds its time instead). Returns False, with
+        nothing changed, when there is nothing to re-plan or ruckig refuses the new start."""
+        if self.kind not in ('position', 'velocity', 'stop') or not (
+                _finite(position) and _finite(velocity)):
+            return False
+        inp = self._inp
+        raw = (self.raw_position, self.raw_velocity, self.raw_acceleration)
+        self.raw_position, self.raw_velocity, self.raw_acceleration = position, velocity, 0.0
+        try:
+            self._plan(inp.control_interface, inp.target_position[0], inp.target_velocity[0],
+                       inp.max_acceleration[0], inp.max_velocity[0])
+        except ValueError:
+            self.raw_position, self.raw_velocity, self.raw_acceleration = raw
+            return False
+        self.position, self.velocity, self.acceleration = position, velocity, 0.0
+        return True
+
     # -------------------------------------------------------------------- step
     def step(self, dt: float) -> None:
         """Advance the profile by dt seconds (dt may differ from tick to tick)."""

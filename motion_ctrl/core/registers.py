@@ -19,6 +19,44 @@ INCH = 0.0254
 MOTOR_COUNTS_PER_M = 40000 / INCH     # 8,000 counts/rev on a 5.08 mm lead
 LOAD_COUNTS_PER_M = 10000 / INCH      # 2.54 um linear encoder
 
+# Input budgets of a register value (doc/input_limits.md): a larger value is refused by its size
+# before any per-entry work, and the refusal quotes the size, never the value. A table of 4096
+# entries is 1 m of travel at 0.25 mm spacing (an ISO 230-2 test measures a few dozen targets);
+# a string of 4096 characters holds a file path (Linux PATH_MAX). With the node's registers a
+# fixed set, they bound a whole `ros2 param load` as well.
+MAX_TABLE_ENTRIES = 4096
+MAX_STRING_CHARS = 4096
+SHOWN_CHARS = 80          # a refusal quotes a value up to this long, else its size
+
+
+def shown(value) -> str:
+    """`value` as a refusal quotes it: its repr when short, else what it is and its size."""
+    text = repr(value) if not (hasattr(value, '__len__') and len(value) > SHOWN_CHARS) else ''
+    if text and len(text) <= SHOWN_CHARS:
+        return text
+    if isinstance(value, (str, bytes)):
+        return f'a {len(value)}-character {type(value).__name__}'
+    if hasattr(value, '__len__'):
+        return f'a {len(value)}-entry {type(value).__name__}'
+    return f'a {type(value).__name__}'
+
+
+def size_refusal(name: str, value) -> str | None:
+    """Why `value` is too large for a register, by its size alone (MAX_TABLE_ENTRIES,
+    MAX_STRING_CHARS), or None."""
+    if isinstance(value, str):
+        if len(value) > MAX_STRING_CHARS:
+            return f'{name}: a {len(value)}-character string (at most {MAX_STRING_CHARS})'
+        return None
+    if _is_array(value):
+        if len(value) > MAX_TABLE_ENTRIES:
+            return f'{name}: {len(value)} entries (at most {MAX_TABLE_ENTRIES})'
+        for i, v in enumerate(value):
+            if isinstance(v, str) and len(v) > MAX_STRING_CHARS:
+                return (f'{name}[{i}]: a {len(v)}-character string (at most '
+                        f'{MAX_STRING_CHARS})')
+    return None
+
 
 @dataclass(frozen=True)
 class Register:
@@ -50,27 +88,33 @@ class Register:
         return ' '.join(parts)
 
     def check(self, value) -> str | None:
-        """Why `value` is refused for this register, or None when it is acceptable."""
+        """Why `value` is refused for this register, or None when it is acceptable. A value
+        over the input budgets is refused by its size first (`size_refusal`); a refusal quotes
+        a value only when it is short (`shown`)."""
         n = self.name
+        size = size_refusal(n, value)
+        if size:
+            return size
         if self.type == 'double':
             if not isinstance(value, float):      # strict, as ROS is: 2 is not 2.0
-                return f'{n}: expected a floating-point number, got {value!r}'
+                return f'{n}: expected a floating-point number, got {shown(value)}'
             return self._check_number(float(value))
         if self.type == 'integer':
             if isinstance(value, bool) or not isinstance(value, int):
-                return f'{n}: expected an integer, got {value!r}'
+                return f'{n}: expected an integer, got {shown(value)}'
             return self._check_number(value)
         if self.type == 'string':
             if not isinstance(value, str):
-                return f'{n}: expected a string, got {value!r}'
+                return f'{n}: expected a string, got {shown(value)}'
             if self.choices and value not in self.choices:
-                return f'{n}: unknown value {value!r}, expected one of {", ".join(self.choices)}'
+                return (f'{n}: unknown value {shown(value)}, expected one of '
+                        f'{", ".join(self.choices)}')
             return None
         if self.type == 'double_array':
             try:
                 items = [float(v) for v in value]
             except (TypeError, ValueError):
-                return f'{n}: expected a list of numbers, got {value!r}'
+                return f'{n}: expected a list of numbers, got {shown(value)}'
             for i, v in enumerate(items):
                 reason = self._check_number(v)
                 if reason:
@@ -78,7 +122,7 @@ class Register:
             return None
         if self.type == 'string_array':
             if isinstance(value, str) or not all(isinstance(v, str) for v in value):
-                return f'{n}: expected a list of strings, got {value!r}'
+                return f'{n}: expected a list of strings, got {shown(value)}'
             return None
         raise AssertionError(self.type)
 
@@ -94,7 +138,10 @@ class Register:
           as the string '1e-06', so a dumped value returns as text.
 
         Integer spellings stay refused for doubles (`2` is not `2.0`), as ROS types are strict.
+        A value over the input budgets is left as it is (refused by its size in `check`).
         """
+        if size_refusal(self.name, value):
+            return value
         if self.type in ('double_array', 'string_array') and _is_array(value) and not value:
             return []
         if self.type == 'double' and isinstance(value, str):
@@ -278,6 +325,10 @@ AXIS_REGISTERS = (
        'PMAC DEFINE COMP', min=0.0),
     _r('max_velocity', 'double', 0.1, 'm/s', 'Move velocity limit.', 'Galil SP, PMAC Ixx16',
        min=0.0, min_exclusive=True),
+    _r('overspeed_velocity', 'double', 0.0, 'm/s', 'Measured motor velocity (in load units) '
+       'beyond which the loop opens at once, output 0 (OVERSPEED, until <axis>/reset), as a '
+       "drive's overspeed fault; 0 = 1.5 × max_velocity; else above max_velocity.",
+       'Kollmorgen VOSPD (fault F08), CiA 402 0x6080 max motor speed', min=0.0),
     _r('max_acceleration', 'double', 1.5, 'm/s²', 'Move acceleration limit.',
        'Galil AC/DC, PMAC Ixx17', min=0.0, min_exclusive=True),
     _r('max_jerk', 'double', 0.0, 'm/s³', 'Move jerk limit (0 = trapezoid).', 'PMAC Ixx19..21 '
@@ -401,6 +452,10 @@ AXIS_RULES = (
      if not (0 < v['following_error_fatal'] < v['following_error_warning']) else
      'following_error_warning must be <= following_error_fatal '
      f'({v["following_error_warning"]:g} > {v["following_error_fatal"]:g})'),
+    (('overspeed_velocity', 'max_velocity'), lambda v: None
+     if not (0 < v['overspeed_velocity'] <= v['max_velocity']) else
+     'overspeed_velocity must be above max_velocity (or 0: 1.5 × max_velocity) '
+     f'({v["overspeed_velocity"]:g} <= {v["max_velocity"]:g} m/s)'),
     (('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2'), _notch_rule),
     (('excitation_band_low', 'excitation_band_high'), lambda v: None
      if v['excitation_band_high'] > v['excitation_band_low'] else

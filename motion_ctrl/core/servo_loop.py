@@ -1,8 +1,10 @@
 """The servo loop of a controller: one whole tick for all its axes, as a PMAC servo interrupt or
 LinuxCNC's motion controller cycle runs it, in named stages:
 
- 1. register sets accepted since the last tick, applied together (a set of several parameters
-    takes effect on one tick; PMAC applies I-variables at the next servo cycle);
+ 1. targets and jogs posted since the last tick, the latest of each axis (`post`: a flood of
+    them costs one re-plan per axis per tick); register sets accepted since the last tick,
+    applied together (a set of several parameters takes effect on one tick; PMAC applies
+    I-variables at the next servo cycle);
  2. scheduled targets: those a stop, abort, disable or fault made void are dropped (said why),
     those due are started;
  3. per axis, feedback freshness: a tick with no new encoder sample counts its time (a late tick
@@ -43,6 +45,8 @@ from msg_defs.status import Status
 STREAM_SETTLE: Final = 0.5
 _FEEDBACK_FAULT: Final = int(Status.FEEDBACK_FAULT)
 _FE_FATAL: Final = int(Status.FOLLOWING_ERROR_FATAL)
+# The faults the axis's tick latches itself, logged with their reason when they do.
+_TICK_FAULTS: Final = _FE_FATAL | int(Status.OVERSPEED)
 # 1.5 * 2**52: adding and taking it away rounds a double of magnitude below 2**51 to the nearest
 # whole number (half to even), in floats (round() would make a Python int).
 _ROUND: Final = 6755399441055744.0
@@ -73,12 +77,15 @@ class _Channel:
 @dataclass
 class Tick:
     """What one tick produced: the axes that have feedback, their outputs [V], the axes whose
-    status word changed since the last tick, and log lines as (level, text), level 'error' or
-    'warning'."""
+    status word changed since the last tick, log lines as (level, text), level 'error' or
+    'warning', and the posted targets and jogs it refused."""
     names: list[str] = field(default_factory=list)
     outputs: list[float] = field(default_factory=list)
     changed: list[str] = field(default_factory=list)
     log: list[tuple[str, str]] = field(default_factory=list)
+    # targets and jogs posted since the last tick and refused at it: (what, axis, reason), what
+    # 'target_position' or 'target_velocity' (the node logs them at most once a second)
+    refused: list[tuple[str, str, str]] = field(default_factory=list)
 
 
 class ServoLoop:
@@ -98,6 +105,8 @@ class ServoLoop:
         self.scheduled: list[tuple[float, str, float, int]] = []   # (stamp, axis, target, epoch)
         self.coords = CoordinateSystem(axes)
         self._age_recorded = False   # the sample age of this tick is in the statistics
+        # Targets and jogs posted since the last tick, the latest per axis: {axis: (jog, value)}
+        self.pending: dict[str, tuple[bool, float]] = {}
 
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
@@ -144,6 +153,32 @@ class ServoLoop:
                            f'by {why}') for stamp, a, t, _ in self.scheduled if a in axes]
         self.scheduled = [x for x in self.scheduled if x[1] not in axes]
         return log
+
+    def post(self, axis: str, value: float, jog: bool = False) -> None:
+        """A target position (or, `jog`, a jog velocity) for `axis`, started at the next tick
+        or at the next `flush`; of those posted before then the latest of each axis wins and the
+        others are never tried. A stream of targets, however fast, then costs one re-plan per
+        axis per tick (the input budget of a per-tick input; a drive's cyclic setpoint is the
+        same: one per cycle, the last written)."""
+        self.pending[axis] = (jog, value)
+
+    def flush(self) -> tuple[list[tuple[str, str]], list[tuple[str, str, str]]]:
+        """Start what was posted (move, jog) now: (log lines, refused as (what, axis, reason)).
+        The tick does this first; a caller with another command (stop, a register set, a
+        schedule) does it before, so that commands take effect in the order they came."""
+        pending = self.pending
+        self.pending = {}
+        log: list[tuple[str, str]] = []
+        refused: list[tuple[str, str, str]] = []
+        moves = {a: v for a, (jog, v) in pending.items() if not jog}
+        jogs = {a: v for a, (jog, v) in pending.items() if jog}
+        if moves:
+            log += self.unschedule(moves, 'a newer immediate target')
+            refused += [('target_position', a, r) for a, r in self.move(moves)]
+        if jogs:
+            log += self.unschedule(jogs, 'a jog')
+            refused += [('target_velocity', a, r) for a, r in self.jog(jogs)]
+        return log, refused
 
     def move(self, targets: dict) -> list[tuple[str, str]]:
         """Start moves now, after any register set accepted before them (commands take effect in
@@ -212,6 +247,8 @@ class ServoLoop:
             return None
         out = Tick()
         self.stats.period(dt)
+        if self.pending:
+            out.log, out.refused = self.flush()
         if self.staged:
             out.log += self.apply_staged()
         if self.scheduled:
@@ -313,11 +350,11 @@ class ServoLoop:
         return ch.axis.update(dt, io.motor, io.load, sample_dt=sample_dt, age=age)
 
     def _report(self, ch: _Channel, out: Tick) -> None:
-        """Log what latched this tick: a fatal following error, a correction loop stopped, hunting
-        at rest."""
+        """Log what latched this tick: a fatal following error or an overspeed, a correction loop
+        stopped, hunting at rest."""
         axis = ch.axis
         faults = axis.fault_bits
-        if faults & _FE_FATAL and not ch.faults & _FE_FATAL:
+        if faults & _TICK_FAULTS & ~ch.faults:
             out.log.append(('error', f'{ch.name}: {axis.fault_reason}; loop opened, call '
                                      f'{ch.name}/reset'))
         ch.faults = faults

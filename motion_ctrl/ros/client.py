@@ -18,7 +18,7 @@ from motion_ctrl.ros import ros_env
 from msg_defs.status import Status
 
 
-FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
+FAULTS = Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT | Status.OVERSPEED
 
 
 class SlideClient(Node):

@@ -85,6 +85,8 @@ STOP_DEADLINE = 3.0      # s from SIGINT/SIGTERM to exit, whatever ROS's teardow
 PRELOAD = ('scipy.interpolate',)     # imported before the loop runs (__init__)
 WATCHDOG = 5.0           # s the spin loop may stand still before the process ends (exit 1)
 MAX_TARGET_NAMES = 256
+# Targets stamped ahead waiting for their time (each tick looks at them all); more are refused.
+MAX_SCHEDULED = 256
 # A trajectory is checked in the callback, between two ticks: ~16 µs per point with
 # accelerations (quintic: its velocity and acceleration extrema are roots of quartics and
 # cubics), ~4 µs without (2 axes, this machine). Longer would hold the servo loop past the
@@ -144,7 +146,7 @@ class ControllerNode(ros_params.RegisterNode):
                               self.sim_time, self.hardware)
         if self.hardware_kind == 'canopen':
             self.hardware.watch(self.axes)
-        self.add_on_set_parameters_callback(self.validate)
+        self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._stage)
 
         self.pub_joint = self.stream(JointState, md.JOINT_STATES, refresh=READERS_REFRESH)
@@ -295,6 +297,11 @@ class ControllerNode(ros_params.RegisterNode):
         return self.axes[axis].live_change_refusal(
             {k: v for k, v in changes.items() if k not in self.hardware_values[axis]})
 
+    def _validate(self, params):
+        if self.loop.pending:
+            self._flush_inputs()         # (a target that came first applies first)
+        return self.validate(params)
+
     def _stage(self, params) -> None:
         for p in params:
             if p.name == 'feedback_timeout':
@@ -377,26 +384,49 @@ class ControllerNode(ros_params.RegisterNode):
 
     def _on_target_position(self, msg: JointState) -> None:
         targets = self._targets(msg, 'position', 'target_position')
+        if not targets:
+            return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        ahead = stamp - self.get_clock().now().nanoseconds * 1e-9
-        if targets and 0.0 < ahead <= MAX_SCHEDULE:
+        if stamp > 0.0 and 0.0 < stamp - self.get_clock().now().nanoseconds * 1e-9 \
+                <= MAX_SCHEDULE:
+            if len(self.loop.scheduled) + len(targets) > MAX_SCHEDULED:
+                self._refused('target_position:scheduled', (
+                    f'target_position refused: {len(self.loop.scheduled)} targets scheduled '
+                    f'already (at most {MAX_SCHEDULED})'))
+                return
+            self._flush_inputs()         # (what came before it applies before it)
             for a, t in targets.items():
                 self.loop.schedule(stamp, a, t)
             return
-        self._log(self.loop.unschedule(targets, 'a newer immediate target'))
-        for a, reason in self.loop.move(targets):
-            self._refused(f'target:{a}', f'target_position refused: {reason}')
+        for a, t in targets.items():
+            self.loop.post(a, t)
 
     def _on_target_velocity(self, msg: JointState) -> None:
-        jogs = self._targets(msg, 'velocity', 'target_velocity')
-        self._log(self.loop.unschedule(jogs, 'a jog'))
-        for a, reason in self.loop.jog(jogs):
-            self._refused(f'jog:{a}', f'target_velocity refused: {reason}')
+        for a, v in self._targets(msg, 'velocity', 'target_velocity').items():
+            self.loop.post(a, v, jog=True)
+
+    def _flush_inputs(self) -> None:
+        """Before another command: the targets and jogs posted since the last tick start first
+        (ServoLoop.flush), so that commands take effect in the order they came."""
+        log, refused = self.loop.flush()
+        self._log(log)
+        self._log_refused(refused)
+
+    def _log_refused(self, refused) -> None:
+        for what, a, reason in refused:
+            self._refused(f'{what}:{a}', f'{what} refused: {reason}')
 
     def _on_raw_trajectory(self, data: bytes) -> None:
         if len(data) > MAX_TRAJECTORY_BYTES:
             self._refused('trajectory:size', f'joint_trajectory refused: a {len(data)}-byte '
                           f'message (at most {MAX_TRAJECTORY_BYTES})')
+            return
+        counts = md.trajectory_counts(data)       # (before decoding: microseconds)
+        most = max(MAX_TRAJECTORY_POINTS.values())
+        if counts is not None and (counts[1] > most or counts[0] > MAX_TARGET_NAMES):
+            self._refused('trajectory:size', f'joint_trajectory refused: {counts[1]} points for '
+                          f'{counts[0]} axes (at most {most} points, {MAX_TARGET_NAMES} axes: '
+                          'send a longer path in parts)')
             return
         if self.sim_time:                   # deterministic: prepared and started at once
             job = self._prepare(data)
@@ -432,6 +462,8 @@ class ControllerNode(ros_params.RegisterNode):
 
     def _start_trajectory(self, job, stamp: float) -> None:
         """On the servo thread: start (or schedule) a prepared trajectory."""
+        if self.loop.pending:
+            self._flush_inputs()         # (a target that came first applies first)
         if isinstance(job, str):
             self._refused('trajectory', f'joint_trajectory refused: {job}')
             return
@@ -448,11 +480,15 @@ class ControllerNode(ros_params.RegisterNode):
 
         def trigger(fn):
             def cb(request, response):
+                if self.loop.pending:
+                    self._flush_inputs()     # (a target that came first applies first)
                 response.success, response.message = fn()
                 return response
             return cb
 
         def enable(request, response):
+            if self.loop.pending:
+                self._flush_inputs()
             response.success, response.message = axis.enable(request.data)
             return response
         self.create_service(SetBool, md.service_name(a, 'enable'), enable)
@@ -524,6 +560,8 @@ class ControllerNode(ros_params.RegisterNode):
             return                       # sim time paused or stepped back
         if tick.log:
             self._log(tick.log)
+        if tick.refused:
+            self._log_refused(tick.refused)
         names, outputs = tick.names, tick.outputs
         if names and (self.pub_joint.wanted() or self.pub_reference.wanted()
                       or self.pub_motor.wanted()):

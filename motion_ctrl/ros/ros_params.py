@@ -15,6 +15,8 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from motion_ctrl.core.registers import shown, size_refusal
+
 _TYPES = {
     'double': (ParameterType.PARAMETER_DOUBLE, Parameter.Type.DOUBLE),
     'integer': (ParameterType.PARAMETER_INTEGER, Parameter.Type.INTEGER),
@@ -202,7 +204,8 @@ class RegisterNode(Node):
         """The parameter services (`ros2 param set`, `ros2 param load`, set_parameters,
         set_parameters_atomically) all land here, one parameter at a time for set_parameters.
         Before rclpy's own checks: an unknown name is refused naming it (rclpy's text,
-        "Invalid access to undeclared parameter(s): []", loses the names); values are typed as
+        "Invalid access to undeclared parameter(s): []", loses the names); a value over the
+        input budgets is refused by its size (registers.size_refusal); values are typed as
         their registers are declared (`Register.as_declared`: YAML `[]`, floats read back as
         text); a read-only parameter set to the value it has is accepted unchanged, so a
         `ros2 param dump` loads back without a refusal. After: rclpy's wrong-type refusal
@@ -210,6 +213,10 @@ class RegisterNode(Node):
         unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
         if unknown:
             return SetParametersResult(successful=False, reason=self.unknown_reason(unknown))
+        for p in parameter_list:      # oversized: refused by its size, before any per-entry work
+            reason = size_refusal(p.name, p.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
         params = [self.as_declared(p) for p in parameter_list]
         kept = [p for p in params if not self.unchanged_read_only(p)]
         if not kept:
@@ -247,7 +254,8 @@ class RegisterNode(Node):
 
     def unknown_reason(self, names) -> str:
         """The one refusal of a parameter this node does not have (start-up and set alike)."""
-        return (f'{", ".join(names)}: no such parameter on {self.get_name()} '
+        return (f'{", ".join(shown(n) if len(n) > 80 else n for n in names)}: no such '
+                f'parameter on {self.get_name()} '
                 f'(axes {self.axis_names})')
 
     def refuse_unknown_overrides(self) -> None:

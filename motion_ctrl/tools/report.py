@@ -73,8 +73,8 @@ STRIP_BITS = [
     (Status.CORRECTING, 'tab:pink'),
     (Status.FOLLOWING_ERROR_WARNING, 'gold'),
 ]
-FAULT_BITS = (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT | Status.LIMIT
-              | Status.ABORTED | Status.ESTOPPED | Status.STOPPED)
+FAULT_BITS = (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT | Status.OVERSPEED
+              | Status.LIMIT | Status.ABORTED | Status.ESTOPPED | Status.STOPPED)
 FAULT_NAMES = [b for b in Status if b & FAULT_BITS]
 _unpack = struct.unpack_from
 # Legends right of the panels: they never hide data.

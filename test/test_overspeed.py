@@ -1,0 +1,133 @@
+"""The actual-velocity limit (overspeed_velocity, a drive's overspeed fault) and the catch-up rule
+after a stall of the servo loop (core.axis STALL_PERIODS), without ROS: the loop ticks the
+simulated slide (SimHardware) and is held up mid-move while the slide's amplifier runs on by
+itself, as the plant node does while the controller's process is frozen (SIGSTOP)."""
+import pytest
+
+from motion_ctrl.core.axis import OVERSPEED_RATIO, Axis
+from motion_ctrl.core.registers import (AXIS_REGISTERS, LOAD_COUNTS_PER_M, axis_defaults,
+                                        consistency)
+from motion_ctrl.core.servo_loop import ServoLoop
+from motion_ctrl.sim.hardware import SimHardware
+from msg_defs.status import Status as S
+
+T = 1e-3
+TIMEOUT = 0.02
+TARGET = 0.05          # m: 500 ms of a 0.1 m/s cruise
+V_MAX = axis_defaults(AXIS_REGISTERS)['max_velocity']
+
+
+def _slide_loop(**registers):
+    values = axis_defaults(AXIS_REGISTERS) | registers
+    hw = SimHardware(['x'], T)
+    loop = ServoLoop({'x': Axis('x', values, T)}, {'x': values}, T, TIMEOUT, True, hw)
+    hw.configure()
+    hw.activate()
+    return loop, hw
+
+
+def _move_with_stall(stall: float, at: float = 0.2, end: float = 1.6, **registers):
+    """The slide's move to TARGET with the loop held up `stall` s at `at` s while the slide runs
+    on (its amplifier's watchdog trips after command_timeout and brakes it). Returns (peak slide
+    speed after the stall [m/s], final slide error [counts], status word, log lines)."""
+    loop, hw = _slide_loop(**registers)
+    plant = hw.plants['x']
+    n_at, n_end, k_stall = round(at / T), round(end / T), round(stall / T)
+    log, peak, k = [], 0.0, 0
+    while k < n_end:
+        if k == n_at and k_stall:
+            for _ in range(k_stall):            # the plant node's cycles, no command coming
+                plant.advance(T, T)
+                hw.time += T
+            k += k_stall
+        tick = loop.cycle(k * T)
+        log += tick.log
+        if k == 1:
+            assert loop.move({'x': TARGET}) == []
+        if k > n_at:
+            peak = max(peak, abs(plant.v_l))
+        k += 1
+    axis = loop.axes['x']
+    return peak, (plant.x_l - TARGET) * LOAD_COUNTS_PER_M, axis.status, log
+
+
+@pytest.mark.parametrize('stall', [0.003, 0.01, 0.02, 0.05, 0.2])
+def test_a_move_held_up_lands_without_a_sprint(stall):
+    """The loop held up mid-move while the slide runs on (the amplifier holds its last command
+    for its 10 ms watchdog, then brakes): a late tick within STALL_PERIODS is stepped as it
+    comes; after a longer stall the move is planned again from the measured state. The slide
+    never exceeds overspeed_velocity (1.5 x max_velocity) and the move lands within a count,
+    unfaulted. Without the rule the command is the stall ahead and the output at its limit to
+    catch up: 20 ms ran the slide at 0.151 m/s, 50 ms at 0.2 m/s into OVERSPEED, 200 ms into
+    FOLLOWING_ERROR_FATAL. (With it, the peaks: 0.101, 0.109, 0.121, 0.109, 0.103 m/s: the
+    first sample after the stall gives the slide's mean speed over it, a little more than it
+    has after braking.)"""
+    peak, error, status, log = _move_with_stall(stall)
+    print(f'{stall * 1e3:g} ms: peak {peak:.4f} m/s, final error {error:+.2f} counts')
+    assert peak <= OVERSPEED_RATIO * V_MAX, f'{peak:.4f} m/s after a {stall * 1e3:g} ms stall'
+    assert abs(error) <= 1.0, f'{error:+.2f} counts'
+    assert status & S.MOTION_DONE and not status & (S.OVERSPEED | S.FOLLOWING_ERROR_FATAL), \
+        (status, log)
+
+
+def test_a_stall_at_rest_changes_nothing():
+    peak, error, status, _ = _move_with_stall(0.05, at=1.2)
+    assert abs(error) <= 1.0 and status & S.MOTION_DONE and peak < 0.001
+
+
+def _fed_loop(**registers):
+    values = axis_defaults(AXIS_REGISTERS) | registers
+    return ServoLoop({'x': Axis('x', values, T)}, {'x': values}, T, TIMEOUT, True)
+
+
+def test_overspeed_opens_the_loop_with_its_own_bit_and_reason():
+    """Encoder samples of a motor (and slide) running at 0.2 m/s, twice max_velocity, beyond
+    the default limit (OVERSPEED_RATIO × max_velocity = 0.15 m/s): the loop opens on that
+    tick, output 0, OVERSPEED (not a following error) with the speed and the limit in the log,
+    once; reset clears it."""
+    loop = _fed_loop()
+    motor_cpm = loop.axes['x'].r['motor_counts_per_m']
+    for k in range(5):                           # at rest
+        loop.feedback('x', 0, 0, k * T)
+        loop.tick(k * T)
+    assert loop.axes['x'].enabled
+    lines, outputs = [], []
+    for j in range(1, 4):
+        k = 4 + j
+        x = 0.2 * j * T
+        loop.feedback('x', round(x * motor_cpm), round(x * LOAD_COUNTS_PER_M), k * T)
+        tick = loop.tick(k * T)
+        lines += tick.log
+        outputs += tick.outputs
+    axis = loop.axes['x']
+    assert axis.status & S.OVERSPEED and not axis.status & S.FOLLOWING_ERROR_FATAL
+    assert not axis.enabled and outputs == [0.0, 0.0, 0.0]
+    assert len(lines) == 1, lines
+    level, text = lines[0]
+    assert level == 'error' and text == ('x: OVERSPEED: motor velocity +0.2000 m/s beyond '
+                                         'overspeed_velocity 0.15 m/s; loop opened, call x/reset')
+    assert f'{OVERSPEED_RATIO * V_MAX:g}' == '0.15'
+    ok, _ = loop.reset('x')
+    assert ok and not axis.status & S.OVERSPEED
+
+
+def test_overspeed_velocity_is_a_register_above_max_velocity():
+    """0 (the default) is OVERSPEED_RATIO × max_velocity; a value at or below max_velocity is
+    refused naming both; a set value is the limit the tick compares with."""
+    values = axis_defaults(AXIS_REGISTERS)
+    assert values['overspeed_velocity'] == 0.0
+    reasons = consistency(values | {'overspeed_velocity': 0.1})
+    assert reasons and 'overspeed_velocity' in reasons[0] and 'max_velocity' in reasons[0]
+    assert consistency(values | {'overspeed_velocity': 0.12}) == []
+    # 0.12 m/s set: samples at 0.13 m/s fault (the default, 0.15, would not)
+    for limit, faults in ((0.12, True), (0.0, False)):
+        loop = _fed_loop(overspeed_velocity=limit)
+        motor_cpm = loop.axes['x'].r['motor_counts_per_m']
+        for k in range(5):
+            loop.feedback('x', 0, 0, k * T)
+            loop.tick(k * T)
+        x = 0.13 * T
+        loop.feedback('x', round(x * motor_cpm), round(x * LOAD_COUNTS_PER_M), 5 * T)
+        loop.tick(5 * T)
+        assert bool(loop.axes['x'].status & S.OVERSPEED) == faults, limit
+
