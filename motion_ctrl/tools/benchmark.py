@@ -100,11 +100,12 @@ def bench_core(n: int = 20000) -> list[tuple[str, float]]:
         ax.home(0, 0)
 
     def following(i):
-        if i % 3000 == 0:                    # the circle lasts 3.64 s: start it again
+        if i % 4000 == 0:      # the circle lasts 3.64 s: start it again from its end, at rest
             paths = traj.paths()
             for n, ax in axes.items():
                 ax.profile.hold(0.0)
-                assert ax.follow(paths[n])[0]
+                ok, why = ax.follow(paths[n])
+                assert ok, why
         for ax in axes.values():
             pos = ax.profile.position
             ax.update(1e-3, int(pos * r['motor_counts_per_m']),
