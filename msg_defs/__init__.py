@@ -8,8 +8,8 @@ relative so a namespace works. Encoder counts travel as float64 in JointState.po
 from msg_defs.status import Status
 from msg_defs.topics import (
     COMMAND, ENCODERS, JOINT_STATES, MOTOR_STATES, PLANT_STATES, REFERENCE_STATES,
-    AMPLIFIER_STATES, TARGET_POSITION, TARGET_VELOCITY, JOINT_TRAJECTORY, DIAGNOSTICS, CLOCK,
-    FOLLOW_JOINT_TRAJECTORY, CONTROLLER_STATE, QUERY_STATE,
+    AMPLIFIER_STATES, TARGET_POSITION, TARGET_VELOCITY, MAX_TARGET_BYTES, JOINT_TRAJECTORY,
+    DIAGNOSTICS, CLOCK, FOLLOW_JOINT_TRAJECTORY, CONTROLLER_STATE, QUERY_STATE,
     status_topic,
     amplifier_fault_topic, service_name,
     SERVICES, motor_joint, load_joint, split_joint, gather_topic,
@@ -45,6 +45,7 @@ def __getattr__(name: str):
 __all__ = [
     'Status', 'COMMAND', 'ENCODERS', 'JOINT_STATES', 'MOTOR_STATES', 'PLANT_STATES',
     'REFERENCE_STATES', 'AMPLIFIER_STATES', 'TARGET_POSITION', 'TARGET_VELOCITY',
+    'MAX_TARGET_BYTES',
     'JOINT_TRAJECTORY', 'DIAGNOSTICS', 'FOLLOW_JOINT_TRAJECTORY', 'CONTROLLER_STATE', 'QUERY_STATE',
     'CLOCK', 'status_topic', 'amplifier_fault_topic', 'service_name', 'SERVICES', 'motor_joint',
     'load_joint', 'split_joint',

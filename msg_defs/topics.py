@@ -3,6 +3,11 @@ works."""
 
 TARGET_POSITION = 'target_position'    # sensor_msgs/JointState -> controller, position [m]
 TARGET_VELOCITY = 'target_velocity'    # sensor_msgs/JointState -> controller, velocity [m/s]
+# A target message larger than this is refused by its size before it is decoded (rclpy would
+# build a Python string per name first: a flood of 10,000-name messages at 100 Hz took the loop
+# from 995 to ~500 Hz); the servo bus's bridge refuses it before the bus. 64 KiB holds hundreds
+# of axes.
+MAX_TARGET_BYTES = 65536
 JOINT_TRAJECTORY = 'joint_trajectory'  # trajectory_msgs/JointTrajectory -> controller (PVT) [m]
 JOINT_STATES = 'joint_states'          # controller ->: load position/velocity, effort = output [V]
 REFERENCE_STATES = 'reference_states'  # controller ->: commanded (profile) position/velocity

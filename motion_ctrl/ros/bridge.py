@@ -43,6 +43,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 
 import msg_defs as md
+from motion_ctrl.ros.refusals import RefusalLog, too_large
 
 SERVO_TOPICS = frozenset({'/' + md.ENCODERS, '/' + md.COMMAND, md.CLOCK})
 POLL = 0.1                   # s between looks for readers on the user's side
@@ -206,6 +207,7 @@ class Bridge:
         self.suspects: set[str] = set()          # ... and seen unbridged in the last look
         self.started = time.monotonic()
         self.next_look = 0.0
+        self.refusals = RefusalLog(log)
 
     # -- the graph ----------------------------------------------------------------------------
     def poll(self) -> None:
@@ -261,9 +263,11 @@ class Bridge:
             out = self.servo.create_publisher(msg_type, topic, qos)
             # (a group per topic: its samples copied one at a time, in the order they came)
             reader = self.servo_in if topic in SERVO_TOPICS else self.public
-            sub = reader.create_subscription(
-                msg_type, topic, lambda data, out=out: out.publish(data), qos, raw=True,
-                callback_group=MutuallyExclusiveCallbackGroup())
+            copy = self._target_gate(topic, out) if topic.rsplit('/', 1)[-1] in (
+                md.TARGET_POSITION, md.TARGET_VELOCITY) else (lambda data, out=out:
+                                                              out.publish(data))
+            sub = reader.create_subscription(msg_type, topic, copy, qos, raw=True,
+                                             callback_group=MutuallyExclusiveCallbackGroup())
             self.inward.add(topic)
             if topic in SERVO_TOPICS:
                 self.copied_in[topic] = (reader, sub, out)
@@ -280,6 +284,20 @@ class Bridge:
             self.public.create_service(
                 srv_type, service, self._forward(client, service), callback_group=self.group)
             self.services.add(service)
+
+    def _target_gate(self, topic: str, out):
+        """The copy of a target topic: a message larger than the controller takes
+        (msg_defs.MAX_TARGET_BYTES) is refused here, before the servo bus, as the controller
+        would refuse it (once a second, with a count): a flood of them copied on loaded the
+        loop's process and stalled its link to the plant."""
+        what = topic.rsplit('/', 1)[-1]
+
+        def copy(data: bytes) -> None:
+            if len(data) > md.MAX_TARGET_BYTES:
+                self.refusals.refused(topic, 'bridge: ' + too_large(what, len(data)))
+                return
+            out.publish(data)
+        return copy
 
     def _foreign_publisher(self, topic: str, unknown: bool = False) -> bool:
         """Whether a node on the user's domain that is not a bridge publishes `topic` there. A

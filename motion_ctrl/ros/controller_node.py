@@ -42,7 +42,6 @@ from __future__ import annotations
 import faulthandler
 import gc
 import importlib
-import math
 import os
 import queue
 import signal
@@ -65,6 +64,7 @@ from motion_ctrl.ros import ros_env, servo_bus, ros_params
 from motion_ctrl.ros.hardware_topics import TopicsHardware, seconds_of, stamp_ns, stamp_of
 from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.ros.follow_action import FollowJointTrajectoryServer
+from motion_ctrl.ros.refusals import RefusalLog, too_large
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
@@ -77,10 +77,6 @@ from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROL
 from motion_ctrl.sim.hardware import SimHardware
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
-# Targets are read raw and a message larger than this is refused by its size before it is
-# decoded (rclpy would build a Python string per name first: a flood of 10,000-name messages
-# at 100 Hz took the loop from 995 to ~500 Hz). 64 KiB holds hundreds of axes.
-MAX_TARGET_BYTES = 65536
 STOP_DEADLINE = 3.0      # s from SIGINT/SIGTERM to exit, whatever ROS's teardown is doing
 PRELOAD = ('scipy.interpolate',)     # imported before the loop runs (__init__)
 WATCHDOG = 5.0           # s the spin loop may stand still before the process ends (exit 1)
@@ -94,7 +90,6 @@ MAX_SCHEDULED = 256
 # from where the last one is.
 MAX_TRAJECTORY_POINTS = {'with accelerations': 400, 'without': 1500}
 MAX_TRAJECTORY_BYTES = 1 << 20
-REFUSAL_LOG_PERIOD = 1.0  # s: one log line per kind of refused input per second, with a count
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
 # s of wall time the sim clock (hardware sim, use_sim_time) ticks before it runs the callbacks
 SIM_BATCH = 0.001
@@ -190,7 +185,7 @@ class ControllerNode(ros_params.RegisterNode):
         self.status_due = 0.0
         self.status_at: float | None = None       # the tick time the refresh last counted from
         self.stats = self.loop.stats
-        self.refusals: dict[str, list] = {}      # kind -> [time of last line, count since]
+        self.refusals = RefusalLog(self.get_logger().warning)
         # What drives the tick: a timer in real time; in sim time the plant's samples
         # (topics) or this node's own clock (sim: spin_step).
         self.timer = None
@@ -345,23 +340,13 @@ class ControllerNode(ros_params.RegisterNode):
             self.hardware.resend()
 
     def _refused(self, kind: str, text: str) -> None:
-        """A refusal logged at most once per REFUSAL_LOG_PERIOD per kind, with how many like it
-        were not logged (a stream of bad input must not flood the log or slow the loop)."""
-        now = time.monotonic()
-        entry = self.refusals.setdefault(kind, [-math.inf, 0])
-        if now - entry[0] < REFUSAL_LOG_PERIOD:
-            entry[1] += 1
-            return
-        more = f' ({entry[1]} more refused in the last {now - entry[0]:.1f} s)' \
-            if entry[1] and entry[0] > -math.inf else ''
-        entry[0], entry[1] = now, 0
-        self.get_logger().warning(text + more)
+        """A refusal, logged at most once a second per kind (ros.refusals)."""
+        self.refusals.refused(kind, text)
 
     def _raw_target(self, callback, what: str):
         def on_raw(data: bytes) -> None:
-            if len(data) > MAX_TARGET_BYTES:
-                self._refused(what + ':size', f'{what} refused: a {len(data)}-byte message '
-                              f'(at most {MAX_TARGET_BYTES})')
+            if len(data) > md.MAX_TARGET_BYTES:
+                self._refused(what + ':size', too_large(what, len(data)))
                 return
             try:
                 msg = deserialize_message(data, JointState)
