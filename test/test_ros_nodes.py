@@ -1034,6 +1034,7 @@ def test_trajectory_over_dds_lands_and_refusals_leave_it_untouched(slide, axis):
 
 
 # -- 5. clean stop (last: it ends the module's nodes) ----------------------------------------------
+@pytest.mark.servo_link_under_test       # (the plant stops first: the stall is the test)
 def test_nodes_stop_cleanly_on_sigint(axis, slide):
     """SIGINT (Ctrl-C) ends both nodes with exit code 0 and no traceback in their output.
     The plant goes first: its encoder stream stops, and the controller's watchdog opens the

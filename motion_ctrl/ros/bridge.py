@@ -36,6 +36,7 @@ import importlib
 import time
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.exceptions import InvalidHandle
 from rclpy.client import Client
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -263,10 +264,8 @@ class Bridge:
             out = self.servo.create_publisher(msg_type, topic, qos)
             # (a group per topic: its samples copied one at a time, in the order they came)
             reader = self.servo_in if topic in SERVO_TOPICS else self.public
-            copy = self._target_gate(topic, out) if topic.rsplit('/', 1)[-1] in (
-                md.TARGET_POSITION, md.TARGET_VELOCITY) else (lambda data, out=out:
-                                                              out.publish(data))
-            sub = reader.create_subscription(msg_type, topic, copy, qos, raw=True,
+            sub = reader.create_subscription(msg_type, topic, self._copy_in(topic, out), qos,
+                                             raw=True,
                                              callback_group=MutuallyExclusiveCallbackGroup())
             self.inward.add(topic)
             if topic in SERVO_TOPICS:
@@ -285,18 +284,24 @@ class Bridge:
                 srv_type, service, self._forward(client, service), callback_group=self.group)
             self.services.add(service)
 
-    def _target_gate(self, topic: str, out):
-        """The copy of a target topic: a message larger than the controller takes
-        (msg_defs.MAX_TARGET_BYTES) is refused here, before the servo bus, as the controller
-        would refuse it (once a second, with a count): a flood of them copied on loaded the
-        loop's process and stalled its link to the plant."""
+    def _copy_in(self, topic: str, out):
+        """The copy of `topic` onto the bus through `out`. A target message larger than the
+        controller takes (msg_defs.MAX_TARGET_BYTES) is refused here, before the servo bus, as
+        the controller would refuse it (once a second, with a count): a flood of them copied on
+        loaded the loop's process and stalled its link to the plant. A servo stream's copy is
+        stopped by `look` on another thread than the one that copies: a sample taken before
+        is dropped."""
         what = topic.rsplit('/', 1)[-1]
+        gate = what in (md.TARGET_POSITION, md.TARGET_VELOCITY)
 
         def copy(data: bytes) -> None:
-            if len(data) > md.MAX_TARGET_BYTES:
+            if gate and len(data) > md.MAX_TARGET_BYTES:
                 self.refusals.refused(topic, 'bridge: ' + too_large(what, len(data)))
                 return
-            out.publish(data)
+            try:
+                out.publish(data)
+            except InvalidHandle:       # (the copy stopped meanwhile)
+                pass
         return copy
 
     def _foreign_publisher(self, topic: str, unknown: bool = False) -> bool:
