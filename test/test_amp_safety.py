@@ -36,6 +36,9 @@ from motion_ctrl.ros.client import FAULTS, SlideClient  # noqa: E402
 from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 from motion_ctrl.core.registers import PLANT_AXIS  # noqa: E402
 
+# No rerun on a stall of the servo link (faults of the link are these tests' subject).
+pytestmark = pytest.mark.servo_link_under_test
+
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
     pytestmark = pytest.mark.timeout(150)

@@ -23,6 +23,9 @@ from conftest import REPO_ROOT
 from kit import COUNT, INCH, long_run
 from motion_ctrl.ros.processes import PRIVATE_NET, private_network
 
+# No rerun on a stall of the servo link (the drive's and the link's faults are the subject).
+pytestmark = pytest.mark.servo_link_under_test
+
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
     pytestmark = pytest.mark.timeout(240)

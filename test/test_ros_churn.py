@@ -16,6 +16,9 @@ import pytest
 
 from kit import long_run
 
+# No rerun on a stall of the servo link (a fault under the churn is what the soak counts).
+pytestmark = pytest.mark.servo_link_under_test
+
 
 @long_run('1-2 min; a soak: scripts/soak runs it for as long as you like')
 @pytest.mark.timeout(300)          # (about a minute here; scripts/soak for a long run)

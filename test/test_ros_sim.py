@@ -15,6 +15,9 @@ from msg_defs.status import Status
 from motion_ctrl.ros.client import SlideClient
 from motion_ctrl.ros.processes import params_dir
 
+# No rerun on a stall of the servo link (none in the loop; the amplifier watchdog is a subject).
+pytestmark = pytest.mark.servo_link_under_test
+
 
 def _client(axes=('x', 'y'), context=None):
     return SlideClient(axes=axes, name='sim_client', services=True, context=context)
