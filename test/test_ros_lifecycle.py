@@ -59,7 +59,7 @@ STUCK_TEARDOWN = """
 import rclpy, sys, time
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
-from motion_ctrl.ros.controller_node import spin
+from motion_ctrl.ros.node_runner import spin
 class Stuck(Node):
     def destroy_node(self):          # a teardown that never ends
         time.sleep(60)
@@ -90,7 +90,7 @@ def _sigterm_when_up(script: str, env: dict, wait: float) -> tuple[int, float, s
 def test_stop_does_not_wait_for_a_stuck_teardown(node_env):
     """A node whose ROS teardown hangs still leaves STOP_DEADLINE after SIGTERM, exit code 0,
     saying why and where it was stuck (once in CI a plant was still there 5 s after it)."""
-    from motion_ctrl.ros.controller_node import STOP_DEADLINE
+    from motion_ctrl.ros.node_runner import STOP_DEADLINE
     code, elapsed, err = _sigterm_when_up(STUCK_TEARDOWN, node_env, STOP_DEADLINE + 5.0)
     assert code == 0, err
     assert STOP_DEADLINE - 0.1 < elapsed < STOP_DEADLINE + 2.0, elapsed
@@ -100,7 +100,7 @@ def test_stop_does_not_wait_for_a_stuck_teardown(node_env):
 STUCK_LOOP = """
 import ctypes, rclpy
 from rclpy.signals import SignalHandlerOptions
-from motion_ctrl.ros.controller_node import spin
+from motion_ctrl.ros.node_runner import spin
 rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
 node = rclpy.create_node('wedged')
 libc = ctypes.PyDLL(None)                  # (PyDLL: its calls keep the GIL)
@@ -118,7 +118,7 @@ def test_a_wedged_loop_ends_its_process(node_env):
     """The process watchdog: a spin loop that stands still WATCHDOG s (here in a C call holding
     the GIL, where neither a signal handler nor the stop deadline can run) ends the process,
     exit code 1, with every thread's stack on stderr; a SIGTERM meanwhile changes nothing."""
-    from motion_ctrl.ros.controller_node import WATCHDOG
+    from motion_ctrl.ros.node_runner import WATCHDOG
     code, elapsed, err = _sigterm_when_up(STUCK_LOOP, node_env, WATCHDOG + 10.0)
     assert code == 1, err
     assert elapsed < WATCHDOG + 1.0, elapsed
@@ -129,7 +129,7 @@ FROZEN = """
 import gc, os, signal
 import rclpy
 from rclpy.signals import SignalHandlerOptions
-from motion_ctrl.ros.controller_node import spin
+from motion_ctrl.ros.node_runner import spin
 rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
 node = rclpy.create_node('frozen')
 def first_tick():
@@ -182,7 +182,7 @@ EARLY_SIGNAL = """
 import os, signal
 import rclpy
 from rclpy.signals import SignalHandlerOptions
-from motion_ctrl.ros.controller_node import spin, stop_on_signals
+from motion_ctrl.ros.node_runner import spin, stop_on_signals
 stop_on_signals('early')               # as run() does before it makes the node
 os.kill(os.getpid(), signal.SIGINT)    # Ctrl-C while the node is still being made
 rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
@@ -204,7 +204,7 @@ def test_a_signal_while_the_node_is_made_stops_it_cleanly(node_env):
 
 NESTED_SIGNALS = """
 import os, signal, sys, threading
-from motion_ctrl.ros.controller_node import stop_on_signals
+from motion_ctrl.ros.node_runner import stop_on_signals
 stop_on_signals('nested')
 handler = signal.getsignal(signal.SIGTERM)
 raised = [0]

@@ -39,17 +39,12 @@ its own so the servo tick only hands it over.
 """
 from __future__ import annotations
 
-import faulthandler
-import gc
 import importlib
-import os
 import queue
-import signal
 import threading
 import sys
 import time
 
-import rclpy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, UInt32
@@ -60,16 +55,16 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 import msg_defs as md
-from motion_ctrl.ros import ros_env, servo_bus, ros_params
+from motion_ctrl.ros import ros_params
 from motion_ctrl.ros.hardware_topics import TopicsHardware, seconds_of, stamp_ns, stamp_of
 from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.ros.follow_action import FollowJointTrajectoryServer
+from motion_ctrl.ros.node_runner import run
 from motion_ctrl.ros.refusals import RefusalLog, too_large
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
 from motion_ctrl.core.gather import COLUMNS
-from motion_ctrl.core.hardware import HardwareError
 from motion_ctrl.core.servo_loop import ServoLoop
 from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
                                         CONTROLLER_GLOBAL, HARDWARE_REGISTERS, PLANT_AXIS,
@@ -77,9 +72,7 @@ from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROL
 from motion_ctrl.sim.hardware import SimHardware
 
 STATUS_PERIOD = 0.1      # the status word is re-published at least at 10 Hz
-STOP_DEADLINE = 3.0      # s from SIGINT/SIGTERM to exit, whatever ROS's teardown is doing
 PRELOAD = ('scipy.interpolate',)     # imported before the loop runs (__init__)
-WATCHDOG = 5.0           # s the spin loop may stand still before the process ends (exit 1)
 MAX_TARGET_NAMES = 256
 # Targets stamped ahead waiting for their time (each tick looks at them all); more are refused.
 MAX_SCHEDULED = 256
@@ -136,7 +129,7 @@ class ControllerNode(ros_params.RegisterNode):
             self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see run()
         self.sim_time = self.get_parameter('use_sim_time').value
         self.hardware = self._make_hardware(hw_values)
-        self.hardware.configure()          # raises HardwareError: one line, exit 2 (run)
+        self.hardware.configure()          # raises HardwareError: one line, exit 2 (node_runner)
         self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
                               self.sim_time, self.hardware)
         if self.hardware_kind == 'canopen':
@@ -670,137 +663,6 @@ class ControllerNode(ros_params.RegisterNode):
         self.pub_diag.send(diagnostics_message(
             self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes, extra))
         self.stats.reset_window()
-
-
-def spin(node) -> None:
-    """Spin on ros_env.executor() until SIGINT or SIGTERM.
-
-    The signals only raise a flag: the context is shut down after the last callback returned,
-    so no callback publishes on a dead context. Before that a node's `shutdown_outputs()`, if
-    it has one, leaves its outputs safe (the controller: loops open, 0 V).
-    """
-    executor = ros_env.executor()
-    executor.add_node(node)
-    # What start-up made (imports, the node) stays: the cyclic collector's full passes would
-    # walk it all, ~20 ms with the servo thread held (first seen ~3 s after start, a
-    # FEEDBACK_FAULT or an amplifier-watchdog trip); frozen, they walk only what the loop makes.
-    gc.collect()
-    gc.freeze()
-    stop_on_signals(node.get_name())
-    pet = 0.0
-    step = getattr(node, 'spin_step', None)
-    try:
-        while _RUNNING and rclpy.ok():
-            if step is None:
-                executor.spin_once(timeout_sec=0.05)
-            else:
-                step(executor)
-            now = time.monotonic()
-            if now >= pet:
-                # The process watchdog (PMAC's watchdog timer): a loop stuck WATCHDOG s ends the
-                # process from faulthandler's own thread, which needs no GIL; rclpy keeps the
-                # GIL through publish(), and a publish was seen stuck on the shared-memory port
-                # of a SIGKILLed peer with the SIGTERM never handled (the stop deadline is a
-                # Python thread). The amplifiers' command watchdog keeps the axes safe meanwhile.
-                faulthandler.dump_traceback_later(WATCHDOG, exit=True, file=sys.stderr)
-                pet = now + WATCHDOG / 10
-    finally:
-        safe = getattr(node, 'shutdown_outputs', None)
-        if safe is not None and rclpy.ok():
-            try:
-                safe()
-            except Exception as e:          # (still shut down; say why the outputs may not be)
-                print(f'{node.get_name()}: shutdown_outputs failed: {e!r}', file=sys.stderr)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-        faulthandler.cancel_dump_traceback_later()     # (armed until the teardown is done)
-
-
-# Emptied by the first SIGINT / SIGTERM once stop_on_signals ran. Not a threading.Event: a signal
-# handler must take no lock, since a second signal can run the handler again inside the first (a
-# burst of signals deadlocked a controller in Event.set; only the process watchdog ended it).
-_RUNNING = ['running']
-
-
-def stop_on_signals(name: str) -> None:
-    """From now on SIGINT and SIGTERM only raise the stop flag that `spin` watches (and start
-    the stop deadline): a signal while the node is still being made ends it as cleanly as one
-    while it spins (it was a KeyboardInterrupt traceback).
-
-    The deadline (ros_env.leave_if_stuck, STOP_DEADLINE): once in a CI run a plant given
-    SIGTERM was still there 5 s later (not reproduced in 65 tries, idle or loaded). The outputs
-    are made safe first (`shutdown_outputs`, and the plant's command watchdog behind it); what
-    is left, ROS's teardown of the node and its DDS participant, must not keep a stopped node
-    alive."""
-    def on_signal(*_):
-        try:
-            _RUNNING.pop()           # (one C call: of handlers run inside each other, one goes on)
-        except IndexError:
-            return
-        ros_env.leave_if_stuck(name, STOP_DEADLINE)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
-
-
-def run(node_class, args=None) -> int:
-    """Start a node; a bad parameter (from a YAML or the command line) exits 2 with one line."""
-    from rclpy.exceptions import (InvalidParameterTypeException,
-                                  InvalidParameterValueException, ParameterException)
-    from rclpy.signals import SignalHandlerOptions
-    ros_env.local_discovery()
-    # The loop runs on the servo bus in a process of its own; this one bridges it (issue 11).
-    bridged = servo_bus.supervise(f'motion_ctrl.ros.{node_class.NODE_NAME}_node',
-                                  node_class.NODE_NAME, list(args or sys.argv))
-    if bridged is not None:
-        return bridged
-    stop_on_signals(node_class.NODE_NAME)
-    try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except RuntimeError as e:          # rclpy's RCLError: e.g. a malformed -p override
-        print(f'{node_class.__name__}: bad arguments: {str(e).splitlines()[0]}'
-              f'{ros_params.yaml_bool_hint(str(e))}', file=sys.stderr)
-        return 2
-    argv = list(args or sys.argv)
-    refusal = ros_params.params_files_refusal(node_class.NODE_NAME, argv,
-                                              getattr(node_class, 'ALSO_SECTIONS', ()))
-    if refusal:
-        print(f'{node_class.__name__}: {refusal}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        node = node_class(**({'params_files': ros_params.params_files(argv)}
-                             if getattr(node_class, 'ALSO_SECTIONS', ()) else {}))
-    except (InvalidParameterValueException, InvalidParameterTypeException,
-            ParameterException, ValueError, HardwareError) as e:
-        # rclpy's range refusal reads "Invalid parameter value (v) for parameter. Reason: <why>:
-        # <name>"; the reason names the parameter too.
-        msg = str(e).split('Reason: ', 1)[-1].splitlines()[0] if str(e) else type(e).__name__
-        hardware = isinstance(e, HardwareError)
-        where = None if hardware else ros_params.where_from(msg, argv)
-        what = 'hardware' if hardware else 'bad parameter'
-        print(f'{node_class.__name__}: {what}{f" (from {where})" if where else ""}: '
-              f'{msg}', file=sys.stderr, flush=True)
-        # Fix: the context's shutdown destroys the half-built node, and rclpy waits for its
-        # handle to be free; once in a CI run that wait never ended (a plant with an unknown
-        # axis, busy in Node.destroy_node for minutes). Give it 2 s, then leave.
-        closing = threading.Thread(target=rclpy.try_shutdown, daemon=True)
-        closing.start()
-        closing.join(2.0)
-        if closing.is_alive():
-            os._exit(2)
-        return 2
-    problem = ros_env.realtime(node.get_parameter('realtime_priority').value)
-    if problem:
-        node.get_logger().warning(problem)
-    spin(node)
-    # What spin froze is collected now, the node with it (its worker threads have ended):
-    # alive at the interpreter's exit, it outlives the extension modules, and nanobind listed
-    # ruckig's objects as ~30 lines of "leaked" on every stop.
-    del node
-    gc.unfreeze()
-    gc.collect()
-    return 0
 
 
 def main(args=None):

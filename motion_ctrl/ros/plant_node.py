@@ -29,7 +29,7 @@ from sensor_msgs.msg import JointState
 
 import msg_defs as md
 from motion_ctrl.ros import ros_params
-from motion_ctrl.ros.controller_node import run
+from motion_ctrl.ros.node_runner import run
 from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.sim.plant import SlidePlant
 from motion_ctrl.core.registers import (PLANT_AXIS, PLANT_GLOBALS, PLANT_PARAMETERS,

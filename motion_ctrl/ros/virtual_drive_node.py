@@ -25,7 +25,7 @@ from motion_ctrl.core.hardware import HardwareError
 from motion_ctrl.core.registers import (PLANT_AXIS, VIRTUAL_DRIVE_AXIS, VIRTUAL_DRIVE_GLOBALS,
                                         plant_consistency)
 from motion_ctrl.ros import ros_params
-from motion_ctrl.ros.controller_node import run
+from motion_ctrl.ros.node_runner import run
 from motion_ctrl.ros.hardware_topics import stamp_of
 from motion_ctrl.ros.plant_states import PlantStates
 
