@@ -17,11 +17,11 @@ again must get every change, and a controller that is its own clock (hardware si
 makes a move's changes within a millisecond of wall time; a reliable writer keeping only the
 last few would drop the older ones before a busy reader took them. A late joiner gets that
 history, oldest first (the bridge's copy on the user's domain keeps the last
-ros.bridge.STATUS_WORDS_DEPTH words, and the word is republished at 10 Hz: a second after a
-change they are all the current word). A client that waits for a move's MOTION_DONE reads the
-words published from its start on (STATUS_CHANGES_QOS, volatile): a history arriving after it
-sent its target would show an earlier move's MOTION_DONE cleared and raised; its first word
-comes with the next change or refresh. The record of an excitation run is reliable and
+ros.servo_bus.bridge.STATUS_WORDS_DEPTH words, and the word is republished at 10 Hz: a second
+after a change they are all the current word). A client that waits for a move's MOTION_DONE
+reads the words published from its start on (STATUS_CHANGES_QOS, volatile): a history arriving
+after it sent its target would show an earlier move's MOTION_DONE cleared and raised; its first
+word comes with the next change or refresh. The record of an excitation run is reliable and
 transient local too (GATHER_QOS, the last run only): a reader that joins or loses a sample
 late still gets the whole record, repaired by the reliable protocol; an amplifier's fault flag
 (LATCHED_QOS) keeps only its current value.

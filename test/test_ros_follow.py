@@ -5,8 +5,8 @@ process sends control_msgs/FollowJointTrajectory goals to `/controller/follow_jo
 judges by the result; the true slides come from `plant_states`.
 
 The controller runs on the servo bus (the default), so every goal, cancel, result and feedback
-passes its bridge (ros.bridge); the first test runs a goal with the bus off, the action server
-on the user's domain itself. One slide serves the other tests: each starts from the axes
+passes its bridge (ros.servo_bus.bridge); the first test runs a goal with the bus off, the action
+server on the user's domain itself. One slide serves the other tests: each starts from the axes
 enabled and at rest (`ready`). The rules themselves are tested in process
 (test_follow_goal.py)."""
 import re

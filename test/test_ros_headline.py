@@ -15,7 +15,7 @@ def slide(rclpy_session, tmp_path, request, monkeypatch):
     if plant:
         # 'foreign': the controller on the servo bus, the plant off it, answering on the user's
         # domain as a plant of another make does; the controller's bridge carries its streams
-        # (ros.bridge).
+        # (ros.servo_bus.bridge).
         monkeypatch.setenv(servo_bus.ENV, 'auto')
     with running_slide(tmp_path, lambda: SlideClient(name=f'headline_{feedback}'),
                        {'x.feedback': feedback}, exit_zero=True,

@@ -891,7 +891,7 @@ def test_a_flood_of_bad_targets_is_logged_once_a_second(slide, axis, case):
 def foreign_encoders(axis):
     """A publisher of `encoders` on the user's domain, on the probe's node: a second plant, as a
     faulty encoder interface would be. With the nodes on the servo bus (ros.servo_bus) the
-    controller's bridge copies it in, as it does for a plant of another make (bridge.py)."""
+    controller's bridge copies it in, as it does for a plant of another make (servo_bus.bridge)."""
     pub = axis.create_publisher(JointState, md.ENCODERS, md.SERVO_QOS)
     yield pub
     axis.destroy_publisher(pub)

@@ -6,7 +6,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from motion_ctrl.ros import servo_bus  # noqa: E402
-from motion_ctrl.ros.bridge import STARTUP, Bridge  # noqa: E402
+from motion_ctrl.ros.servo_bus.bridge import STARTUP, Bridge  # noqa: E402
 
 
 @pytest.mark.parametrize('value, user, bus', [

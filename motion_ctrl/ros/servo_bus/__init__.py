@@ -1,6 +1,14 @@
 """The servo bus: plant and controller exchange `encoders` and `command` (and `/clock` in
 lockstep) on a ROS domain of their own that no tool joins; each node's ROS interface is mirrored
-onto the user's domain by a bridge (motion_ctrl.ros.bridge). Why: doc/design_notes.md.
+onto the user's domain by a bridge (motion_ctrl.ros.servo_bus.bridge). Why: doc/design_notes.md.
+
+    user's domain      `controller` process (bridge)       `plant` process (bridge)
+    ---------------------------|-------------------------------------|------------------
+    servo bus          controller loop process  --command-->  plant loop process
+    (ROS_DOMAIN_ID+50)                          <--encoders--
+
+`supervise` is what each node's `run` calls first: in the process the user started it opens the
+bridge and starts the node again as a child process on the bus (INSIDE set), which runs the loop.
 
 Why a domain of its own: a participant joining a domain makes every participant there send to
 its shared-memory port, and Fast DDS sends all of a participant's messages under one lock, so a
@@ -15,7 +23,7 @@ MOTION_CTRL_SERVO_DOMAIN chooses the bus: unset or `auto` (the default), the dom
 ROS_DOMAIN_ID (wrapping in 1..101, as motion_ctrl's own domains do, below Linux's ephemeral
 ports); a number, that domain (plant and controller must agree); `off`, no bus: the node runs on
 the user's domain itself. A plant (or controller) of another make answers on the user's domain;
-the bridge copies its stream in and the node's out (bridge.py), a hop more each way. Every
+the bridge copies its stream in and the node's out (servo_bus.bridge), a hop more each way. Every
 participant on the bus announces loopback UDP only (loopback_udp.xml).
 """
 from __future__ import annotations
@@ -150,7 +158,7 @@ class _Bus:
     def __init__(self, name: str, namespace: str, public_ctx, servo_ctx):
         from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 
-        from motion_ctrl.ros.bridge import POLL, Bridge
+        from motion_ctrl.ros.servo_bus.bridge import POLL, Bridge
         self.contexts = (public_ctx, servo_ctx)
         self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
             f'[{name}] {m}', file=sys.stderr, flush=True))
