@@ -378,13 +378,8 @@ class Axis(AxisCommands):
         speed): the loop opens at once, output 0, OVERSPEED until reset. (Not the slide's: on
         the load loop's limit cycle across the backlash the slide bounces in the gap at twice
         the motor's speed, 0.23 m/s in the headline table's `load` row.)"""
-        self._open_loop()
-        self._faults |= _OVERSPEED
-        self.fault_reason = (f'OVERSPEED: motor velocity {self.motor_vel:+.4f} m/s beyond '
-                             f'overspeed_velocity {self._overspeed:g} m/s')
-        self._cancel('OVERSPEED')
-        self.settling.abort()
-        self._compose(self.settling.open_loop_bits())
+        self._trip(_OVERSPEED, 'OVERSPEED', f'motor velocity {self.motor_vel:+.4f} m/s beyond '
+                   f'overspeed_velocity {self._overspeed:g} m/s')
 
     def _following_error_fatal(self) -> bool:
         """5. Beyond following_error_fatal (PMAC Ixx11) the loop opens (the warning, Ixx12, is a
@@ -392,14 +387,19 @@ class Axis(AxisCommands):
         fe, fatal = self.following_error, self._fe_fatal
         if not (fatal > 0.0 and abs(fe) > fatal):
             return False
+        self._trip(_FE_FATAL, 'FOLLOWING_ERROR_FATAL', f'following error {fe * 1e3:+.3f} mm '
+                   f'beyond following_error_fatal {fatal * 1e3:g} mm')
+        return True
+
+    def _trip(self, bit: int, name: str, why: str) -> None:
+        """A fault of the tick (overspeed, fatal following error): the loop opens at once,
+        output 0, the motion is abandoned, and `bit` holds until reset."""
         self._open_loop()
-        self._faults |= _FE_FATAL
-        self.fault_reason = (f'FOLLOWING_ERROR_FATAL: following error {fe * 1e3:+.3f} mm '
-                             f'beyond following_error_fatal {fatal * 1e3:g} mm')
-        self._cancel('FOLLOWING_ERROR_FATAL')
+        self._faults |= bit
+        self.fault_reason = f'{name}: {why}'
+        self._cancel(name)
         self.settling.abort()
         self._compose(self.settling.open_loop_bits())
-        return True
 
     def _servo(self, sample_dt: float) -> float:
         """6. The servo law, on new samples over the time they cover. Without a new sample

@@ -90,7 +90,7 @@ SIM_BATCH = 0.001
 # (a tool placing a move's status words among the joint_states samples, a recorder) keeps up;
 # unbounded, the clock ran ~14x real time and a tool's readings of a move lagged it by tens to
 # hundreds of ms of sim time, and its targets landed at times set by its own lag
-MAX_SIM_SPEED = 8.0
+MAX_SIM_SPEED = 4.0
 # s of wall time a state stream goes on from its last look at its readers (a reader that joins
 # misses at most this much; looking costs ~3 µs a stream a tick)
 READERS_REFRESH = 0.05
