@@ -16,7 +16,9 @@ with the same interface, by reading the node's endpoints from the servo bus's gr
   publisher. Then everything published on that topic there is copied in, another bridge's copy
   of the bus's own stream too: it reaches the loop a hop late and twice, and the loop drops a
   sample older than the one it holds (core.servo_loop.ServoLoop.feedback); once only bridges
-  publish it there, the copy stops;
+  publish it there, the copy stops. A target message larger than the controller takes
+  (msg_defs.MAX_TARGET_BYTES) is refused here, before the bus, and logged as the controller
+  logs its refusals (ros.refusals);
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
   unchanged) is answered by calling the node's service and returning its response. An action is
   three services and two topics under `<name>/_action/`, mirrored as such (its goal ids
@@ -242,7 +244,7 @@ class Bridge:
             msg_type = self._type(topic, types)
             if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
-        for topic in [t for t in self.copied_in if not self._foreign_publisher(t, True)]:
+        for topic in [t for t in self.copied_in if not self._foreign_publisher(t, unknown=True)]:
             # (no foreign publisher left: else the bus's own stream, copied out by another
             # bridge for this copy's reader, would come back in a hop late for ever)
             reader, sub, out = self.copied_in.pop(topic)
@@ -304,7 +306,7 @@ class Bridge:
                 pass
         return copy
 
-    def _foreign_publisher(self, topic: str, unknown: bool = False) -> bool:
+    def _foreign_publisher(self, topic: str, *, unknown: bool = False) -> bool:
         """Whether a node on the user's domain that is not a bridge publishes `topic` there. A
         bridge's participant there holds `_bridge_<name>_in` beside `<name>`, and a participant's
         node names arrive together, so this does not depend on what the bus's discovery has
