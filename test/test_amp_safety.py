@@ -140,10 +140,13 @@ def _after_stop(client, t_stop: float) -> dict:
                 and all(w == 0.0 for s, w in amp if s >= t))
     commands = [t for t, v in client.decoded(md.COMMAND) if v != 0.0]
     # Plant cycles the last command was held before 0 V: the output repeats the same volts
-    # while no new command arrives (a new one, even at cruise, differs in its last bits).
+    # while no new command arrives (a new one, even at cruise, differs in its last bits), counted
+    # from the last command's stamp on (the controller itself sends the same volts again on a
+    # tick that found no new sample: those cycles had a command).
     k = next(i for i, (t, _) in enumerate(amp) if t == zero)
     held = 0
-    while k - held - 1 >= 0 and amp[k - held - 1][1] == amp[k - 1][1] != 0.0:
+    while (k - held - 1 >= 0 and amp[k - held - 1][0] > max(commands)
+           and amp[k - held - 1][1] == amp[k - 1][1] != 0.0):
         held += 1
     moving = [(t, v) for t, _, v in after if abs(v) > 1e-3]
     return {
