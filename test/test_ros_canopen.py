@@ -11,6 +11,7 @@ namespace (`inside`): the client must be in the namespace of the nodes.
 from __future__ import annotations
 
 import os
+import pathlib
 import re
 import signal
 import subprocess
@@ -33,10 +34,24 @@ except ImportError:
     pass
 
 
+def network_here() -> tuple[str, list[str], str]:
+    """This process's network namespace, its interfaces and its multicast routes (read from
+    /proc/self and netlink: what this process's sockets see)."""
+    ns = os.readlink('/proc/self/ns/net')
+    lines = pathlib.Path('/proc/self/net/dev').read_text().splitlines()[2:]
+    links = sorted(line.split(':')[0].strip() for line in lines)
+    routes = subprocess.run(['ip', 'route', 'show', 'table', 'all', '224.0.0.0/4'],
+                            capture_output=True, text=True).stdout
+    return ns, links, routes
+
+
 def inside(request) -> bool:
-    """True inside a private network namespace: run the test's body. Outside, run this test in
-    a new one (a pytest of its own) and fail with its output if it fails; returns False."""
+    """True inside a private network namespace: run the test's body (once it has checked that
+    the namespace is one: a loopback only, multicast routed on it). Outside, run this test in a
+    new one (a pytest of its own) and fail with its output if it fails; returns False."""
     if os.environ.get(PRIVATE_NET):
+        _, links, routes = network_here()
+        assert links == ['lo'] and 'dev lo' in routes, (links, routes)
         return True
     inner = request.getfixturevalue('tmp_path') / 'inner'     # (its logs stay with this test)
     run = subprocess.run(private_network([sys.executable, '-m', 'pytest', '-q', '-x', '-s',
@@ -49,6 +64,43 @@ def inside(request) -> bool:
     assert run.returncode == 0, (f'{request.node.nodeid} in a private network namespace:\n'
                                  + run.stdout[-6000:] + run.stderr[-3000:] + logs)
     return False
+
+
+NAMESPACE_PROBE = """
+import json, os, subprocess, can
+links = sorted(l.split(':')[0].strip() for l in open('/proc/self/net/dev').read().splitlines()[2:])
+routes = subprocess.run(['ip', 'route', 'show', 'table', 'all'], capture_output=True,
+                        text=True).stdout
+rx = can.Bus(interface='udp_multicast', channel=CHANNEL, receive_own_messages=False)
+tx = can.Bus(interface='udp_multicast', channel=CHANNEL)
+tx.send(can.Message(arbitration_id=0x701, data=[0x05], is_extended_id=False))
+frame = rx.recv(2.0)
+tx.shutdown(); rx.shutdown()
+print(json.dumps({'ns': os.readlink('/proc/self/ns/net'), 'links': links, 'routes': routes,
+                  'frame': None if frame is None else [frame.arbitration_id, list(frame.data)]}))
+"""
+
+
+def test_the_can_bus_runs_in_a_namespace_of_its_own_with_only_a_loopback():
+    """The udp_multicast CAN bus of these tests (and of `demo --hardware canopen`) runs in a
+    network namespace made for the run: not this machine's, only `lo` in it (up), the multicast
+    route on `lo` and no other route; a frame sent there comes round inside. The namespace goes
+    with the process that made it."""
+    import json
+    from motion_ctrl.ros.processes import CAN_BUS
+    outer_ns, outer_links, _ = network_here()
+    probe = NAMESPACE_PROBE.replace('CHANNEL', repr(CAN_BUS['can_channel']))
+    run = subprocess.run(private_network([sys.executable, '-c', probe]), cwd=REPO_ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr[-3000:]
+    seen = json.loads(run.stdout.strip().splitlines()[-1])
+    assert seen['ns'] != outer_ns
+    assert seen['links'] == ['lo'], seen['links']
+    routes = [r for r in seen['routes'].splitlines() if r.strip()]
+    assert any(r.startswith('224.0.0.0/4 dev lo') for r in routes), routes
+    assert all('dev lo' in r for r in routes), routes
+    assert seen['frame'] == [0x701, [0x05]]
+    assert network_here()[0] == outer_ns and network_here()[1] == outer_links   # (unchanged)
 
 
 def test_demo_headline_through_canopen_at_the_highest_rate(tmp_path):
