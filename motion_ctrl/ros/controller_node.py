@@ -286,8 +286,7 @@ class ControllerNode(ros_params.RegisterNode):
             {k: v for k, v in changes.items() if k not in self.hardware_values[axis]})
 
     def _validate(self, params):
-        if self.loop.pending:
-            self._flush_inputs()         # (a target that came first applies first)
+        self._flush_inputs()
         return self.validate(params)
 
     def _stage(self, params) -> None:
@@ -372,7 +371,7 @@ class ControllerNode(ros_params.RegisterNode):
                     f'target_position refused: {len(self.loop.scheduled)} targets scheduled '
                     f'already (at most {MAX_SCHEDULED})'))
                 return
-            self._flush_inputs()         # (what came before it applies before it)
+            self._flush_inputs()
             for a, t in targets.items():
                 self.loop.schedule(stamp, a, t)
             return
@@ -384,8 +383,11 @@ class ControllerNode(ros_params.RegisterNode):
             self.loop.post(a, v, jog=True)
 
     def _flush_inputs(self) -> None:
-        """Before another command: the targets and jogs posted since the last tick start first
-        (ServoLoop.flush), so that commands take effect in the order they came."""
+        """Before another command (a service, a parameter set, a trajectory, a schedule): the
+        targets and jogs posted since the last tick start first (ServoLoop.flush), so that
+        commands take effect in the order they came."""
+        if not self.loop.pending:
+            return
         log, refused = self.loop.flush()
         self._log(log)
         self._log_refused(refused)
@@ -440,8 +442,7 @@ class ControllerNode(ros_params.RegisterNode):
 
     def _start_trajectory(self, job, stamp: float) -> None:
         """On the servo thread: start (or schedule) a prepared trajectory."""
-        if self.loop.pending:
-            self._flush_inputs()         # (a target that came first applies first)
+        self._flush_inputs()
         if isinstance(job, str):
             self._refused('trajectory', f'joint_trajectory refused: {job}')
             return
@@ -458,15 +459,13 @@ class ControllerNode(ros_params.RegisterNode):
 
         def trigger(fn):
             def cb(request, response):
-                if self.loop.pending:
-                    self._flush_inputs()     # (a target that came first applies first)
+                self._flush_inputs()
                 response.success, response.message = fn()
                 return response
             return cb
 
         def enable(request, response):
-            if self.loop.pending:
-                self._flush_inputs()
+            self._flush_inputs()
             response.success, response.message = axis.enable(request.data)
             return response
         self.create_service(SetBool, md.service_name(a, 'enable'), enable)
