@@ -195,7 +195,9 @@ def test_without_the_servo_bus_the_node_serves_the_action_itself(rclpy_session, 
 @pytest.mark.timeout(120)
 def test_a_goal_through_several_points_succeeds_within_its_goal_tolerance(ready):
     c = ready
-    goal = c.goal({'x': _away(c, 'x', 0.004), 'y': _away(c, 'y', 0.002)},
+    # Last points on whole counts: an encoder floors, so a reading on the target's count puts
+    # the true slide within [0, 1) count of it (a target between counts allows up to 1.6).
+    goal = c.goal({'x': _away(c, 'x', 1575 * COUNT), 'y': _away(c, 'y', 787 * COUNT)},
                   goal_tolerance=[(a, COUNT) for a in AXES])
     mark = {a: len(c.status_log[a]) for a in AXES}
     run = c.send(goal)
