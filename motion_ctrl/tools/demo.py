@@ -95,10 +95,10 @@ def main(argv=None) -> int:
             print(f'demo: the nodes did not come up ({client.not_ready()}); see the logs',
                   file=sys.stderr)
             return 1
-        # (sim, canopen: no `command` / `encoders` on DDS: the slide is in the controller's
-        # loop, or the servo traffic is on the CAN bus)
-        topics = None if args.hardware == 'topics' else [
-            t for t in SERVO_TOPICS if t not in (md.COMMAND, md.ENCODERS)]
+        # What the report draws. Not `command` / `encoders`: over topics each of them read on
+        # the user's domain is a 1 kHz stream more that the bridges copy out, on the cores
+        # the loop runs on (doc/gains.md, "The demo's own load").
+        topics = [t for t in SERVO_TOPICS if t not in (md.COMMAND, md.ENCODERS)]
         recorder = Recorder(bag, topics, discover_status=True).start()
         if not recorder.wait_ready(10.0):
             print('demo: the recorder did not see every topic; recording anyway')
