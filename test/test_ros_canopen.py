@@ -117,7 +117,7 @@ def test_demo_headline_through_canopen_at_the_highest_rate(tmp_path):
     assert 'demo: servo rate 2105.3 Hz: 80 % of 1 Mbit/s (SYNC + PDOs of 4/8/4 bytes, 380 bits' \
         in run.stdout
     errors = {m.group(1).strip(): float(m.group(2)) for m in re.finditer(
-        r'^(.+?)\s+0\.0\d+\s+([+-]\d+\.\d+)\s+\d+$', run.stdout, re.M)}
+        r'^(.+?)\s+0\.0\d+\s+([+-]\d+\.\d+)\s+\d+\s+\d+$', run.stdout, re.M)}
     assert set(errors) == {'1 in forward', '+2 in', 'back to +1 in (reversal)'}, run.stdout
     assert abs(errors['back to +1 in (reversal)']) <= 1.0 and abs(errors['+2 in']) <= 1.0
 

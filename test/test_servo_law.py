@@ -26,10 +26,11 @@ HALF_COUNT = 0.5 * COUNT        # half a linear count of the Galil slide, m
 
 # Every register the servo law reads, pinned here so that changes of the table's defaults (the
 # tuning is somebody else's) cannot change these hand-worked numbers.
-PINNED = dict(mode='position_pid', kp=0.0, ki=0.0, kd=0.0, kvff=0.0, kaff=0.0, friction_ff=0.0,
-              friction_ff_at_rest=0.0, bias=0.0, integration_mode='always', integration_limit=10.0,
-              output_limit=10.0, output_deadband=0.0, deadband_tolerance=0.0, notch_n1=0.0,
-              notch_n2=0.0, notch_d1=0.0, notch_d2=0.0, position_error_limit=0.0)
+PINNED = dict(mode='position_pid', feedback='dual', kp=0.0, ki=0.0, kd=0.0, kvff=0.0, kaff=0.0,
+              friction_ff=0.0, friction_ff_at_rest=0.0, bias=0.0, integration_mode='always',
+              integration_limit=10.0, output_limit=10.0, output_deadband=0.0,
+              deadband_tolerance=0.0, notch_n1=0.0, notch_n2=0.0, notch_d1=0.0, notch_d2=0.0,
+              position_error_limit=0.0)
 
 
 def law(**registers) -> ServoLaw:
@@ -172,7 +173,8 @@ def test_friction_at_rest_by_the_sign_of_an_error_outside_the_anti_hunting_windo
     """friction_ff_at_rest: once the command has stopped, a slide held short by stiction is
     pushed by the sign of its error, until the error is inside the anti-hunting window (half a
     count, or deadband_tolerance); never while the command moves or the target is not stopped,
-    nor in a velocity mode."""
+    nor in a velocity mode, nor where the position loop is on the motor encoder (motor,
+    sampled: the motor's error, free inside a backlash gap, made the axis hunt)."""
     s = law(friction_ff=0.3, friction_ff_at_rest=0.2)
     assert tick(s, 3 * HALF_COUNT) == pytest.approx(0.2, abs=1e-12)       # short: pushed on
     assert tick(s, -3 * HALF_COUNT) == pytest.approx(-0.2, abs=1e-12)     # long: pushed back
@@ -183,6 +185,11 @@ def test_friction_at_rest_by_the_sign_of_an_error_outside_the_anti_hunting_windo
     assert tick(s, 3 * HALF_COUNT) == 0.0                                 # the wider window
     assert tick(law(friction_ff_at_rest=0.2, mode='velocity_pid'), 3 * HALF_COUNT) == 0.0
     assert tick(law(friction_ff=0.3), 3 * HALF_COUNT) == 0.0             # off by default
+    # only on the slide's encoder: the loop on load (as dual) pushes, the motor loops do not
+    assert tick(law(friction_ff_at_rest=0.2, feedback='load'), 3 * HALF_COUNT) == \
+        pytest.approx(0.2, abs=1e-12)
+    for feedback in ('motor', 'sampled'):
+        assert tick(law(friction_ff_at_rest=0.2, feedback=feedback), 3 * HALF_COUNT) == 0.0
 
 
 def test_bias_is_added():
@@ -418,7 +425,8 @@ def servo_law_registers() -> set:
 
 # unit and vendor register of each, from the manuals (PMAC Ixx, RMC, Galil)
 EXPECTED = {
-    'mode': ('', 'RMC'), 'kp': ('V/m', 'Ixx30'), 'ki': ('V/(m·s)', 'Ixx33'),
+    'mode': ('', 'RMC'), 'feedback': ('', 'Galil DV'), 'kp': ('V/m', 'Ixx30'),
+    'ki': ('V/(m·s)', 'Ixx33'),
     'kd': ('V·s/m', 'Ixx31'), 'kvff': ('V·s/m', 'Ixx32'), 'kaff': ('V·s²/m', 'Ixx35'),
     'friction_ff': ('V', 'Ixx68'), 'friction_ff_at_rest': ('V', 'Ixx68'), 'bias': ('V', 'Ixx29'),
     'integration_mode': ('', 'Ixx34'),

@@ -58,8 +58,10 @@ class Config:
 
 @dataclass(frozen=True, slots=True)
 class LawConfig(Config):
-    """The servo law's registers (PMAC Ixx29..39, 63, 67..69; RMC deadband)."""
+    """The servo law's registers (PMAC Ixx29..39, 63, 67..69; RMC deadband), and the feedback
+    (Galil DV), which says whose position error the law sees."""
     mode: str
+    feedback: str
     kp: float
     ki: float
     kd: float
@@ -81,12 +83,19 @@ class LawConfig(Config):
     position_mode: bool = field(metadata=DERIVED)       # mode position_* (else velocity_*)
     pid: bool = field(metadata=DERIVED)                 # mode *_pid (else *_ipd)
     integrate_at_rest: bool = field(metadata=DERIVED)   # integration_mode at_rest (Ixx34 = 1)
+    # friction_ff_at_rest where the position loop reads the slide's (load) encoder, else 0: the
+    # motor's error says nothing of a slide that stiction holds, and a motor free inside the
+    # backlash gap, pushed by it, hunts.
+    breakaway: float = field(metadata=DERIVED)
 
     @staticmethod
     def derive(values: dict) -> dict:
+        from motion_ctrl.core.dual_loop import feedback_encoders    # (it imports this module)
         mode = values['mode']
+        on_load = feedback_encoders(values['feedback'])[0] == 'load'
         return {'position_mode': mode.startswith('position'), 'pid': mode.endswith('pid'),
-                'integrate_at_rest': values['integration_mode'] == 'at_rest'}
+                'integrate_at_rest': values['integration_mode'] == 'at_rest',
+                'breakaway': values['friction_ff_at_rest'] if on_load else 0.0}
 
     @property
     def notch(self) -> tuple[float, float, float, float]:

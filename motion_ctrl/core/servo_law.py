@@ -13,7 +13,8 @@ acceleration; AV = actual velocity of the velocity-loop encoder, which may be an
 as PMAC does: set kvff = kd for a derivative of the error. friction_ff (Ixx68) is added by the
 sign of the *commanded* velocity, 0 at rest; once the command has stopped, friction_ff_at_rest
 is added by the sign of the position error while that lies outside the anti-hunting window
-below (a position mode only): a breakaway aid against stiction, kept below the sliding friction.
+below (a position mode only, with the position loop on the load encoder: feedback dual or
+load): a breakaway aid against stiction, kept below the sliding friction.
 
 The integrator input is off (INTEGRATOR_HELD; its output is held, never zeroed) when
  * integration_mode is `at_rest` (Ixx34 = 1) and the commanded velocity is non-zero;
@@ -200,8 +201,8 @@ class ServoLaw:
             friction = c.friction_ff
         elif cmd_vel < 0.0:
             friction = -c.friction_ff
-        elif c.friction_ff_at_rest and c.position_mode and target_stopped and not anti and raw:
-            friction = c.friction_ff_at_rest if raw > 0.0 else -c.friction_ff_at_rest
+        elif c.breakaway and c.position_mode and target_stopped and not anti and raw:
+            friction = c.breakaway if raw > 0.0 else -c.breakaway
         else:
             friction = 0.0
         ff = c.kvff * cmd_vel + c.kaff * cmd_acc + friction + c.bias

@@ -144,6 +144,20 @@ class SlideClient(Node):
                 return True
         return False
 
+    def settle_after_profile(self, axis: str, mark: int) -> float | None:
+        """Seconds from the end of the profile (AT_TARGET rises) to MOTION_DONE in the status
+        words of `axis` since `mark` (an index into status_log), by their arrival here; None
+        when the move has not shown both."""
+        log = self.status_log[axis][mark:]
+        i0 = next((i for i, (_, w) in enumerate(log) if not w & Status.MOTION_DONE), None)
+        if i0 is None:
+            return None
+        end = next((i for i in range(i0, len(log)) if log[i][1] & Status.AT_TARGET), None)
+        if end is None:
+            return None
+        done = next((i for i in range(end, len(log)) if log[i][1] & Status.MOTION_DONE), None)
+        return None if done is None else log[done][0] - log[end][0]
+
     def move(self, targets: dict, timeout: float = 5.0):
         """Publish a target set; wait until every axis has cleared and raised MOTION_DONE.
 

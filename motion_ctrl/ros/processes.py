@@ -121,7 +121,8 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
                 log_dir=None, params_files: bool = True, env: dict | None = None,
                 plant_env: dict | None = None):
     """Plant and controller with the default params files (which set the registers of axis x;
-    params_files=False: the register table's defaults, the same values, for any axis names)
+    params_files=False: the register table's defaults, for any axis names, the same values but
+    the shipped slide's gains: doc/gains.md)
     plus overrides, in `env` (default: this process's environment), the plant with `plant_env`
     added (e.g. MOTION_CTRL_SERVO_DOMAIN=off: off the servo bus, as a plant of another make);
     returns both."""

@@ -3,7 +3,8 @@
 Starts the plant and the controller as two processes (params/plant.yaml, controller.yaml), or
 with `--hardware sim` the controller alone with the slide simulated inside its loop, commands a
 1-inch forward move, then the headline move after a reversal (+2 in, back to +1 in),
-prints the true slide error (from plant_states) in linear counts and the time to MOTION_DONE,
+prints the true slide error (from plant_states) in linear counts, the time to MOTION_DONE and
+how long after the end of the profile (AT_TARGET) it came, with the median of the three moves,
 and stops both nodes with SIGINT. The moves are recorded into a rosbag2 (MCAP) bag and drawn
 by the report tool next to it (out/demo-<time>/).
 
@@ -17,8 +18,10 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import math
 import os
 import pathlib
+import statistics
 import sys
 
 import msg_defs as md
@@ -102,16 +105,27 @@ def main(argv=None) -> int:
         recorder = Recorder(bag, topics, discover_status=True).start()
         if not recorder.wait_ready(10.0):
             print('demo: the recorder did not see every topic; recording anyway')
-        print(f'{"move":<28}{"target [m]":>12}{"slide error [counts]":>22}{"MOTION_DONE [ms]":>18}')
+        print(f'{"move":<28}{"target [m]":>12}{"slide error [counts]":>22}'
+              f'{"MOTION_DONE [ms]":>18}{"after profile end [ms]":>24}')
+        settles, errors = [], []
         for label, target in (('1 in forward', INCH), ('+2 in', 2 * INCH),
                               ('back to +1 in (reversal)', INCH)):
+            mark = len(client.status_log['x'])
             t = client.move({'x': target}, timeout=5.0)
+            settle = client.settle_after_profile('x', mark) if t is not None else None
             client.spin_for(0.05)      # latest truth after the event
             err = (client.load_position() - target) * LOAD_COUNTS_PER_M
             when = f'{t * 1000:.0f}' if t is not None else 'timeout'
-            print(f'{label:<28}{target:>12.4f}{err:>+22.2f}{when:>18}')
+            after = f'{settle * 1000:.0f}' if settle is not None else '-'
+            print(f'{label:<28}{target:>12.4f}{err:>+22.2f}{when:>18}{after:>24}')
             if t is None:
                 code = 1
+            settles.append(math.inf if settle is None else settle)
+            errors.append(err)
+        median = statistics.median(settles) * 1000
+        print(f'demo: MOTION_DONE - profile end, median of the {len(settles)} moves: '
+              f'{median:.0f} ms; every move within 1 count of its target: '
+              f'{"yes" if all(abs(e) <= 1.0 for e in errors) else "no"}')
         client.spin_for(0.3)
     finally:
         if recorder is not None:
