@@ -729,21 +729,23 @@ def markdown_table(table) -> str:
 
 # The shipped slide's tuning (doc/gains.md): params/controller.yaml, which the demo, the launch
 # file and the tools' --spawn load, carries these values instead of the table's defaults. They
-# are autotune's stiff proposal for the default slide (plant.yaml) with its dual loop, scaled to
-# a lower crossover (27.5 Hz, 10.2 dB / 52.3° on the identified model with one tick of latency;
-# 43° with two, on the slide's exact model: the loop's jitter over DDS), the breakaway aid 0.8 x
-# the Coulomb friction: it pushes the last counts in against stiction, where the integrator alone
-# creeps them out in most of a second. The table's defaults stay the gains of Galil's tuning
-# procedure on the slide (`tune`) without the aid: the harness scenarios and the core tests are
-# stated in them.
-SHIPPED_SLIDE_TUNING: dict[str, float] = {
-    'kp': 5180.0,
-    'ki': 71000.0,
-    'kd': 94.5,
-    'kvff': 95.5,
+# are autotune's stiff proposal for the default slide (plant.yaml) with its dual loop, rounded
+# (8.2 dB / 45.6° on the identified model, crossover 36.9 Hz), with the integrator held while
+# the command moves (PMAC Ixx34 = 1). The breakaway aid (0.75 x the Coulomb friction) pushes the
+# last counts in against stiction. Held during moves, the integrator carries no push past the
+# end of the profile: over DDS, with the loop's real timing, the slide otherwise stopped a count
+# past the target and came back through the backlash in 300-650 ms. The table's defaults stay
+# the gains of Galil's tuning procedure on the slide (`tune`), integrating always, without the
+# aid: the harness scenarios and the core tests are stated in them.
+SHIPPED_SLIDE_TUNING: dict[str, float | str] = {
+    'kp': 9200.0,
+    'ki': 168000.0,
+    'kd': 126.0,
+    'kvff': 127.0,
     'kaff': 0.575,
     'friction_ff': 0.242,
-    'friction_ff_at_rest': 0.194,
+    'friction_ff_at_rest': 0.181,
+    'integration_mode': 'at_rest',
 }
 
 GENERATED = {
