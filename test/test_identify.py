@@ -521,13 +521,16 @@ def test_the_ratio_needs_points_measured_on_both_encoders():
 
 def test_the_identify_tools_settings_for_the_ratio_runs():
     """The tool's pieces around the ratio runs, ROS-free: the soft loop keeps kvff's viscous
-    share, the amplitude keeps the slide's predicted acceleration at the share of friction /
+    share and the runs have no friction feedforward, the amplitude keeps the slide's predicted acceleration at the share of friction /
     slide inertia, and run 1's fit is taken where its resonance lies inside the band."""
     from motion_ctrl.tools import identify as tool
     regs = registers.axis_defaults()
     soft = tool.soft_loop(regs, 16.0)
     assert soft == dict(kp=regs['kp'] / 16, ki=0.0, kd=regs['kd'] / 16,
                         kvff=pytest.approx(regs['kvff'] - regs['kd'] + regs['kd'] / 16))
+    tuned = regs | {'friction_ff': 0.24, 'friction_ff_at_rest': 0.18}
+    assert tool.run_loop(tuned, 16.0) == soft | {'friction_ff': 0.0, 'friction_ff_at_rest': 0.0}
+    assert tool.run_loop(tuned, 1.0) == {'friction_ff': 0.0, 'friction_ff_at_rest': 0.0}
     ad, bd, truth = two_mass()
     f = np.geomspace(20.0, 400.0, 48)
     gm, gl = _exact_response(ad, bd, f)

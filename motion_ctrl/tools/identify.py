@@ -28,7 +28,8 @@ G = S_ry / S_ru, so the feedback does not bias it):
    absolute reference (--slide-mass or --force-per-volt: the response alone fixes only ratios),
    the masses in kg and the amplifier's force per volt.
 
-During the runs kp and kd are lowered (--soft-loop) and ki is 0: the motion near the
+During the runs kp and kd are lowered (--soft-loop), ki is 0 and the friction feedforward off
+(friction must hold the nut on one flank of the backlash): the motion near the
 anti-resonance is a fraction of a count on both encoders, and a stiff loop answering each count
 moves the slide in step with the encoders' own quantisation, which biases what they report of
 such a sine by up to ±15 % (consistently for a given base speed). The registers are put back
@@ -67,7 +68,7 @@ RATIO_VELOCITIES = (1.05, -1.5, 1.2, -0.8, 1.35, -1.15)
 RATIO_ACCELERATION_SHARE = 0.3
 RATIO_MAX_AMPLITUDE = 0.15    # V
 #: the loop registers lowered for the runs (the rest of the axis' registers unchanged)
-LOOP_REGISTERS = ('kp', 'ki', 'kd', 'kvff')
+LOOP_REGISTERS = ('kp', 'ki', 'kd', 'kvff', 'friction_ff', 'friction_ff_at_rest')
 
 
 class IdentifyError(RuntimeError):
@@ -194,6 +195,16 @@ def soft_loop(regs: dict, divisor: float) -> dict:
     return dict(kp=regs['kp'] / divisor, ki=0.0, kd=kd, kvff=regs['kvff'] - regs['kd'] + kd)
 
 
+def run_loop(regs: dict, divisor: float) -> dict:
+    """The registers the runs change: the soft loop (`divisor` 1: the gains as they are), and
+    no friction feedforward. The runs rely on friction to hold the nut on one flank of the
+    backlash; a feedforward that cancels it lets the nut lift off under the sine (on the
+    default slide with friction_ff 0.242 V, the split came out at a slide/motor inertia ratio
+    of 0.37-0.84 against the true 0.16)."""
+    loop = soft_loop(regs, divisor) if divisor != 1.0 else {}
+    return loop | {'friction_ff': 0.0, 'friction_ff_at_rest': 0.0}
+
+
 def ratio_amplitude(fit, coulomb, band, cap=RATIO_MAX_AMPLITUDE):
     """The ratio runs' amplitude [V]: the slide's acceleration the fitted model predicts over
     `band` kept to RATIO_ACCELERATION_SHARE of Coulomb friction / slide inertia (the slide
@@ -281,12 +292,14 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
         creeps = creep_runs(axis, client, args.creep, args.creep_time, rate,
                             float(axis.get('load_counts_per_m')['load_counts_per_m']),
                             log=log) if args.creep > 0 else []
+        soft = run_loop(loop, args.soft_loop)
         if args.soft_loop != 1.0:
-            soft = soft_loop(loop, args.soft_loop)
             log(f'identify: loop registers for the runs: kp {soft["kp"]:.4g}, ki 0, kd '
-                f'{soft["kd"]:.4g}, kvff {soft["kvff"]:.4g} (--soft-loop {args.soft_loop:g}; '
-                'put back after)')
-            axis.set(soft)
+                f'{soft["kd"]:.4g}, kvff {soft["kvff"]:.4g}, no friction feedforward '
+                f'(--soft-loop {args.soft_loop:g}; put back after)')
+        else:
+            log('identify: no friction feedforward during the runs (put back after)')
+        axis.set(soft)
         settings, coarse = stepped(args.amplitude, (lo, hi), args.points, args.dwell,
                                    args.velocity, rate)
         log(f'identify: run 1: stepped sine {args.amplitude:g} V, {lo:g}-{hi:g} Hz, '
