@@ -6,8 +6,9 @@ It talks to the controller like any ROS user: targets on `target_position`, MOTI
 `<axis>/status`, the load (linear) encoder from `joint_states` (the controller's load position,
 read from the `encoders` the plant or the drive sends), registers through the parameter services
 `ros2 param` uses. `plant_states` (the simulation's ground truth) is never read. During the test
-the axis runs on `feedback: motor` — the loop the tables are for — with its compensation off;
-afterwards feedback and compensation are put back as they were, or, with `--apply`, the new
+the axis runs on `feedback: motor` — the loop the tables are for — with its compensation off
+and its integrator on through the moves (`integration_mode: always`); afterwards they are put
+back as they were, or, with `--apply`, the new
 tables are loaded (from the YAML file written) and the test is run again.
 
 `--spawn` starts the simulated slide itself (plant and controller as two processes, as the demo
@@ -186,8 +187,8 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
         raise CalibrationError(f'axis {args.axis} is not ready to move ({Status(word)!r}): '
                                f'reset and enable it first (services {args.axis}/reset, '
                                f'{args.axis}/enable)')
-    regs = axis.get('feedback', 'soft_limit_min', 'soft_limit_max', 'load_counts_per_m',
-                    'backlash_hysteresis', *COMP_REGISTERS)
+    regs = axis.get('feedback', 'integration_mode', 'soft_limit_min', 'soft_limit_max',
+                    'load_counts_per_m', 'backlash_hysteresis', *COMP_REGISTERS)
     cpm = regs['load_counts_per_m']
     lo, hi = (args.range if args.range else
               default_travel(regs['soft_limit_min'], regs['soft_limit_max'], args.overtravel))
@@ -203,7 +204,7 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
         raise CalibrationError('the compensation tables start at position 0: calibrate a travel '
                                'at or above 0')
     targets = iso230.plan_targets(lo, hi, args.targets)
-    saved = {k: regs[k] for k in ('feedback', *COMP_REGISTERS)}
+    saved = {k: regs[k] for k in ('feedback', 'integration_mode', *COMP_REGISTERS)}
     log(f'calibrate: axis {args.axis}, {len(targets)} targets {lo * 1e3:.3f} .. {hi * 1e3:.3f} mm '
         f'(intervals {np.diff(targets).min() * 1e3:.2f} .. {np.diff(targets).max() * 1e3:.2f} mm), '
         f'{args.cycles} bidirectional cycles, overtravel {args.overtravel * 1e3:g} mm')
@@ -223,8 +224,11 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     seconds = {}
     t0 = time.monotonic()
     axis.move(targets[0] - args.overtravel, args.move_timeout)     # at rest before the switch
-    # Motor loop, compensation off: what the tables are to correct.
-    axis.set({'feedback': 'motor', 'backlash_distance': 0.0,
+    # Motor loop, compensation off: what the tables are to correct. The integrator on through
+    # each approach (PMAC Ixx34 = 0): it presses the nut onto the flank it came from; held
+    # during moves, it left the slide where friction stopped it, and the reversal error read
+    # 8 counts of the default slide's 21-count gap.
+    axis.set({'feedback': 'motor', 'integration_mode': 'always', 'backlash_distance': 0.0,
               'leadscrew_table': [], 'backlash_table': []})
     applied = False
     try:
