@@ -521,8 +521,9 @@ def test_the_ratio_needs_points_measured_on_both_encoders():
 
 def test_the_identify_tools_settings_for_the_ratio_runs():
     """The tool's pieces around the ratio runs, ROS-free: the soft loop keeps kvff's viscous
-    share and the runs have no friction feedforward, the amplitude keeps the slide's predicted acceleration at the share of friction /
-    slide inertia, and run 1's fit is taken where its resonance lies inside the band."""
+    share and the runs have no friction feedforward, the amplitude keeps the slide's predicted
+    acceleration at the share of friction / slide inertia, and run 1's fit is taken where its
+    resonance lies inside the band."""
     from motion_ctrl.tools import identify as tool
     regs = registers.axis_defaults()
     soft = tool.soft_loop(regs, 16.0)
