@@ -347,3 +347,26 @@ def test_variable_dt_follows_same_path_and_ends_exactly(smoothing):
         assert var.position == pytest.approx(ref.position, abs=1e-6)
     assert var.position == INCH and var.at_target
     assert ref.position == INCH and ref.at_target
+
+
+@pytest.mark.parametrize('jerk', [0.0, JMAX], ids=['trapezoid', 'jerk-limited'])
+@pytest.mark.parametrize('fast', [1.0, 1.1, 1.4])
+def test_a_re_plan_after_a_stall_never_passes_the_target(jerk, fast):
+    """rebase (the catch-up rule after a stall) from a measured state late in the deceleration:
+    32 counts behind the command, moving `fast` x its speed (a speed from counts over a late
+    sample reads high). The new plan stops at the target without passing it. Planned from that
+    speed as measured, on the slide's registers (1.5 m/s²), the command overran the target by
+    76 counts at 1.1 x and 460 at 1.4 x; the demo over DDS once ended a move 40 counts past its
+    target so."""
+    count = 2.54e-6
+    p = make(jerk)
+    p.move_to(INCH)
+    while INCH - p.position > 512 * count:
+        p.step(T)
+    assert p.rebase(p.position - 32 * count, p.velocity * fast)
+    furthest = p.position
+    for _ in range(2000):
+        p.step(T)
+        furthest = max(furthest, p.position)
+    assert furthest <= INCH + 1e-12, f'{(furthest - INCH) / count:+.2f} counts past'
+    assert p.position == INCH and p.velocity == 0.0

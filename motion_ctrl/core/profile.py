@@ -58,6 +58,8 @@ _SNAP_VELOCITY: Final = 1e-9    # m/s
 _SNAP_ACCELERATION: Final = 1e-6  # m/s^2
 
 _OK_RESULTS: Final = (Result.Working, Result.Finished)
+# Bisection steps for a re-plan's start velocity (rebase): its share known to 2^-12.
+_SHARE_STEPS: Final = 12
 
 
 def _finite(x):
@@ -242,23 +244,56 @@ class Profile:
         """After a stall of the servo loop: the present segment planned again, to the same goal
         under the same limits, from the measured state (`position`, `velocity`, acceleration
         0), so that the command neither jumps ahead by the time lost nor asks for speed to
-        win it back (the catch-up rule, core.axis STALL_PERIODS). A move, jog or stop only;
-        a path keeps its time base (the caller holds its time instead). Returns False, with
-        nothing changed, when there is nothing to re-plan or ruckig refuses the new start."""
+        win it back (the catch-up rule, core.axis STALL_PERIODS). A move never passes its
+        target for it: a start speed towards the target that cannot stop there is cut to one
+        that can. A move, jog or stop only; a path keeps its time base (the caller holds its
+        time instead). Returns False, with nothing changed, when there is nothing to re-plan or
+        ruckig refuses the new start."""
         if self.kind not in ('position', 'velocity', 'stop') or not (
                 _finite(position) and _finite(velocity)):
             return False
         inp = self._inp
         raw = (self.raw_position, self.raw_velocity, self.raw_acceleration)
+        goal = (inp.control_interface, inp.target_position[0], inp.target_velocity[0],
+                inp.max_acceleration[0], inp.max_velocity[0])
         self.raw_position, self.raw_velocity, self.raw_acceleration = position, velocity, 0.0
         try:
-            self._plan(inp.control_interface, inp.target_position[0], inp.target_velocity[0],
-                       inp.max_acceleration[0], inp.max_velocity[0])
+            self._plan(*goal)
+            if self.kind == 'position' and self._passes_target(position, velocity):
+                self._plan_short_of_target(goal, velocity)
         except ValueError:
             self.raw_position, self.raw_velocity, self.raw_acceleration = raw
             return False
-        self.position, self.velocity, self.acceleration = position, velocity, 0.0
+        self.position, self.velocity, self.acceleration = position, self.raw_velocity, 0.0
         return True
+
+    def _passes_target(self, position: float, velocity: float) -> bool:
+        """The segment just planned, from `position` moving at `velocity` towards its target,
+        goes beyond the target before it comes back."""
+        d = self._inp.target_position[0] - position
+        if d * velocity <= 0.0:
+            return False              # at it, moving away, or still: nothing to overrun
+        ext = self._traj.position_extrema[0]
+        beyond = ext.max - position - d if d > 0.0 else position + d - ext.min
+        return beyond > _SNAP_POSITION
+
+    def _plan_short_of_target(self, goal: tuple, velocity: float) -> None:
+        """Plan a re-based move again with the fastest start towards the target, at most the
+        measured velocity, from which it stops at the target without passing it (a stall's
+        re-plan must not overrun the target because the measured speed was a little high:
+        speed from counts over a late sample, a slide that lags its command). At rest it never
+        passes: bisection on the start velocity's share."""
+        lo, hi = 0.0, 1.0
+        for _ in range(_SHARE_STEPS):
+            mid = 0.5 * (lo + hi)
+            self.raw_velocity = velocity * mid
+            self._plan(*goal)
+            if self._passes_target(self.raw_position, self.raw_velocity):
+                hi = mid
+            else:
+                lo = mid
+        self.raw_velocity = velocity * lo
+        self._plan(*goal)
 
     # -------------------------------------------------------------------- step
     def step(self, dt: float) -> None:
