@@ -66,7 +66,7 @@ CORE_FILES = frozenset({
     'test_plant.py',
     'test_profile.py', 'test_registers.py', 'test_rest.py', 'test_scenarios.py',
     'test_servo_law.py', 'test_servo_loop.py', 'test_servo_scenarios.py', 'test_settling.py',
-    'test_trajectory.py',
+    'test_trajectory.py', 'test_two_clocks.py',
 })
 CORE_MARKS = ('core', 'core_slow')
 # What a ROS-free test may not import: ROS 2's Python packages and messages, and what reads bags.
