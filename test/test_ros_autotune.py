@@ -16,7 +16,7 @@ import sys
 import pytest
 import yaml
 
-from motion_ctrl.core.registers import CONTROLLER_AXIS, SHIPPED_SLIDE_TUNING
+from motion_ctrl.core.registers import CONTROLLER_AXIS, LOAD_COUNTS_PER_M, SHIPPED_SLIDE_TUNING
 
 # Each run starts from the register table's default gains (Galil's tuning procedure), not from
 # params/controller.yaml, which carries the shipped slide's tuning (doc/gains.md): the tool's
@@ -105,12 +105,18 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
     assert v['before']['gain_margin_db'] < 8.0 or v['before']['phase_margin_deg'] < 45.0
     assert v['after']['gain_margin_db'] >= 8.0 and v['after']['phase_margin_deg'] >= 45.0
     assert len(v['after']['moves']) == 3
+    # The accuracy autotune promises on this slide: its rest window (the exact count, or ±W
+    # counts where the slide slips more than a count as it breaks away: ±1.5 when identify put
+    # the slip at 2.0 counts), judged at the middle of the count read (doc/rest.md).
+    window = regs.get('x.fine_position_tolerance',
+                      CONTROLLER_AXIS['fine_position_tolerance'].default) * LOAD_COUNTS_PER_M
     for a in v['after']['moves']:
         # every move ends (MOTION_DONE within the tool's 10 s): how soon is not must-show 2's
         # question; on this slide the last count is crept in against 42 N of stiction (runs of
         # 2026-11-24: 10 ms to 5.1 s)
         assert math.isfinite(a['settle_ms']), a
-        assert a['output_pp_v'] < 0.2 and abs(a['final_error_counts']) <= 1.0, a
+        assert a['output_pp_v'] < 0.2, a
+        assert abs(a['final_error_counts']) <= max(1.0, window + 0.5), (window, a)
 
 
 # Opt-in (48 s): test_autotune holds the same rule on this plant without ROS, and the suite's
