@@ -181,7 +181,9 @@ def _restart_and_move(slide) -> float:
     return (client.load_position() - target) / COUNT
 
 
-def _check(m: dict) -> None:
+def _check(m: dict, watchdog: bool) -> None:
+    """`watchdog`: the plant's command watchdog stopped the amplifier (nothing of the controller
+    ran); else the controller's own 0 V did."""
     print(', '.join(f'{k} {v * 1e3:.2f} {"mm" if k == "travel" else "ms"}'
                     if k != 'velocity_at_stop' else f'{k} {v:.4f} m/s' for k, v in m.items()))
     assert m['velocity_at_stop'] >= 0.98 * MAX_VELOCITY, m
@@ -189,8 +191,11 @@ def _check(m: dict) -> None:
     # from the last command's arrival: the plant held that command at most command_timeout
     # of cycles plus the one that sees it. Counted in the plant's own cycles: the wall-clock
     # figures printed above (controller stamp to plant stamp) also carry the command's
-    # transport and late cycles of this VM (14.75 ms against a 14 ms allowance once).
-    assert 0 < m['held_cycles'] <= COMMAND_TIMEOUT + PLANT_PERIOD + 1e-9, m
+    # transport and late cycles of this VM (14.75 ms against a 14 ms allowance once). Where
+    # the controller sent 0 V itself, the plant may have taken it in the very next cycle (no
+    # cycle held).
+    assert m['held_cycles'] <= COMMAND_TIMEOUT + PLANT_PERIOD + 1e-9, m
+    assert m['held_cycles'] > 0 or not watchdog, m
     assert 0.0 <= m['zero_after_last_command'], m
     assert 0.0 <= m['travel'] <= 0.005, m
     assert m['rest_after_stop'] <= 0.5, m
@@ -205,7 +210,7 @@ def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
     os.kill(slide.controller.servo_pid(), signal.SIGKILL)     # the servo loop's own process
     m = _after_stop(client, t_stop)
     assert client.fault is True
-    _check(m)
+    _check(m, watchdog=True)
     assert 'x: amplifier fault' in slide.log('plant')
     error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
@@ -225,7 +230,7 @@ def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
     assert commands[-1][1] == 0.0, commands[-5:]            # its last word: 0 V
     assert not client.status['x'] & Status.ENABLED          # and the loop open
     assert 'loops opened, 0 V commanded' in slide.log('controller')
-    _check(m)
+    _check(m, watchdog=False)
     error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
     assert abs(error) <= 1.0
@@ -256,7 +261,7 @@ def test_sigkill_of_the_process_started_kills_the_loop_cleanly(bus_slide):
     _wait_gone(servo)
     # (its 0 V went to the plant on the bus; the killed bridge no longer copies `command` out)
     assert 'loops opened, 0 V commanded' in slide.log('controller')
-    _check(m)
+    _check(m, watchdog=False)
     error = _restart_and_move(slide)
     print(f'after restart: slide {error:+.2f} counts from the target')
     assert abs(error) <= 1.0
