@@ -61,7 +61,7 @@ if TYPE_CHECKING:
     from scipy.interpolate import BPoly, PPoly
 # scipy's interpolate / optimize / spatial are imported where used (~0.5 s): what does not build
 # a trajectory does not pay for them. The controller node imports them before its loop runs
-# (ros.controller_node.PRELOAD): imported on its first trajectory, they stalled the loop.
+# (ros.targets.PRELOAD): imported on its first trajectory, they stalled the loop.
 
 __all__ = ['AxisLimits', 'AxisPath', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
            'rounded_square', 'contour_error', 'START_TOLERANCE', 'REST_TOLERANCE',

@@ -5,7 +5,7 @@ Two forms:
 
 * `hardware: sim` (the default here): the controller alone, with the slide simulated inside its
   loop and its own sim clock (`use_sim_time: true`): it ticks back to back as fast as the machine
-  allows, up to 4x real time (controller_node.MAX_SIM_SPEED), and publishes `/clock`.
+  allows, up to 4x real time (sim_clock.MAX_SIM_SPEED), and publishes `/clock`.
 * `hardware: topics`: plant (`lockstep: 1`, the clock) and controller (`use_sim_time: true`,
   ticking on encoder samples) as two processes exchanging `encoders` and `command` over DDS.
 

@@ -1,0 +1,65 @@
+"""The controller as the clock (`hardware: sim` with `use_sim_time`): it ticks back to back, as
+fast as the machine allows up to MAX_SIM_SPEED times real time, publishes `/clock`, and runs the
+callbacks that came (targets, services, parameters) between batches of ticks (SIM_BATCH s of
+wall time): deterministic for targets stamped ahead. Its /clock is published once a batch.
+"""
+from __future__ import annotations
+
+import time
+
+from rosgraph_msgs.msg import Clock as ClockMsg
+
+import msg_defs as md
+from motion_ctrl.ros.hardware_topics import stamp_of
+
+# s of wall time the sim clock ticks before it runs the callbacks
+SIM_BATCH = 0.001
+# sim seconds per wall second at most: a client reading the streams (a tool placing a move's
+# status words among the joint_states samples, a recorder) keeps up; unbounded, the clock ran
+# ~14x real time and a tool's readings of a move lagged it by tens to hundreds of ms of sim
+# time, and its targets landed at times set by its own lag
+MAX_SIM_SPEED = 4.0
+
+
+class SimClock:
+    """`node`'s own clock: `tick(stamp)` is its servo cycle, `diagnostics()` its once-a-second
+    report (in sim seconds). The node's clock is set to the ticks' time; it does not read
+    /clock, which it would only hear from itself."""
+
+    def __init__(self, node, period_ns: int, tick, diagnostics) -> None:
+        self.node = node
+        self.period_ns = period_ns
+        self.tick = tick
+        self.diagnostics = diagnostics
+        self.pub_clock = node.create_publisher(ClockMsg, md.CLOCK, 10)
+        self.sim_ns = 0
+        self.wall_start = time.perf_counter()
+        self.next_diagnostics_ns = 1_000_000_000
+        node._time_source.detach_node()
+        node._time_source.clock_callback(ClockMsg())
+
+    def spin_step(self, executor) -> None:
+        """Servo ticks back to back for SIM_BATCH s of wall time (none while the sim time is
+        ahead of MAX_SIM_SPEED x the wall time since the start), then /clock (the time of the
+        last tick: ~1 kHz of wall time, as a simulator publishes it; one message per tick would
+        cost every reader of /clock more than the tick itself) and the callbacks that came
+        meanwhile."""
+        ahead = self.sim_ns * 1e-9 / MAX_SIM_SPEED - (time.perf_counter() - self.wall_start)
+        if ahead > 0.0:                 # (at MAX_SIM_SPEED: callbacks only, until it is time)
+            executor.spin_once(timeout_sec=min(ahead, SIM_BATCH))
+            return
+        if ahead < -SIM_BATCH:          # behind (a busy machine): on from now, not in a burst
+            self.wall_start = time.perf_counter() - self.sim_ns * 1e-9 / MAX_SIM_SPEED
+        end = time.perf_counter() + SIM_BATCH
+        while True:
+            self.tick(stamp_of(self.sim_ns * 1e-9))
+            if self.sim_ns >= self.next_diagnostics_ns:
+                self.next_diagnostics_ns += 1_000_000_000
+                self.diagnostics()
+            self.sim_ns += self.period_ns
+            if time.perf_counter() >= end:
+                break
+        clock = ClockMsg(clock=stamp_of((self.sim_ns - self.period_ns) * 1e-9))
+        self.pub_clock.publish(clock)
+        self.node._time_source.clock_callback(clock)
+        executor.spin_once(timeout_sec=0.0)
