@@ -11,7 +11,6 @@ namespace (`inside`): the client must be in the namespace of the nodes.
 from __future__ import annotations
 
 import os
-import pathlib
 import re
 import signal
 import subprocess
@@ -22,14 +21,14 @@ import pytest
 
 from conftest import REPO_ROOT
 from kit import COUNT, INCH, long_run
-from motion_ctrl.ros.processes import PRIVATE_NET, private_network
+from motion_ctrl.ros.processes import PRIVATE_NET, interfaces, private_network
 
 # No rerun on a stall of the servo link (the drive's and the link's faults are the subject).
-pytestmark = pytest.mark.servo_link_under_test
+pytestmark = [pytest.mark.servo_link_under_test]
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
-    pytestmark = pytest.mark.timeout(240)
+    pytestmark.append(pytest.mark.timeout(240))
 except ImportError:
     pass
 
@@ -38,8 +37,7 @@ def network_here() -> tuple[str, list[str], str]:
     """This process's network namespace, its interfaces and its multicast routes (read from
     /proc/self and netlink: what this process's sockets see)."""
     ns = os.readlink('/proc/self/ns/net')
-    lines = pathlib.Path('/proc/self/net/dev').read_text().splitlines()[2:]
-    links = sorted(line.split(':')[0].strip() for line in lines)
+    links = interfaces()
     routes = subprocess.run(['ip', 'route', 'show', 'table', 'all', '224.0.0.0/4'],
                             capture_output=True, text=True).stdout
     return ns, links, routes
@@ -101,6 +99,17 @@ def test_the_can_bus_runs_in_a_namespace_of_its_own_with_only_a_loopback():
     assert all('dev lo' in r for r in routes), routes
     assert seen['frame'] == [0x701, [0x05]]
     assert network_here()[0] == outer_ns and network_here()[1] == outer_links   # (unchanged)
+
+
+def test_outside_a_private_namespace_the_multicast_bus_is_refused(tmp_path):
+    """start_canopen on this machine's own network (more than a loopback here): refused before
+    any process starts or any frame is sent, with the way to run it."""
+    from motion_ctrl.ros.processes import only_loopback, start_canopen
+    if only_loopback():
+        pytest.skip('this process has only a loopback: nothing to refuse here')
+    with pytest.raises(RuntimeError, match='inside processes.private_network'):
+        start_canopen(log_dir=tmp_path)
+    assert not list(tmp_path.iterdir())          # no node was started (no log opened)
 
 
 def test_demo_headline_through_canopen_at_the_highest_rate(tmp_path):

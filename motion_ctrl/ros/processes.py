@@ -173,6 +173,18 @@ def private_network(argv: list[str]) -> list[str]:
     return unshare + ['sh', '-c', setup, 'sh'] + list(argv)
 
 
+def interfaces() -> list[str]:
+    """The network interfaces of this process's namespace, sorted (/proc/self/net/dev)."""
+    with open('/proc/self/net/dev') as f:
+        return sorted(line.split(':')[0].strip() for line in f.read().splitlines()[2:])
+
+
+def only_loopback() -> bool:
+    """Whether this process's network namespace has no interface but `lo` (what
+    `private_network` makes): a datagram sent here cannot leave the machine."""
+    return interfaces() == ['lo']
+
+
 DRIVE_BOOT = 60.0        # s the emulated drives may take to be heard on the bus
 
 
@@ -194,14 +206,18 @@ def start_canopen(controller_params: dict | None = None, drive_params: dict | No
                   log_dir=None, env: dict | None = None, bus: dict | None = None,
                   params_files: bool = True):
     """The emulated drives (`virtual_drive`) and a controller with `hardware: canopen` on one
-    CAN bus (default CAN_BUS: udp_multicast, so run inside `private_network`), the default
+    CAN bus (default CAN_BUS: udp_multicast, refused outside a namespace with only a loopback:
+    run inside `private_network`), the default
     params files of both (which set axis x; params_files=False: the register table's defaults,
     for any axis names) plus overrides; returns (virtual_drive, controller). The controller
     starts once the drives' heartbeat is on the bus (a loaded machine can take longer than the
     master's 5 s for a node to boot to start a ROS node)."""
+    can = CAN_BUS | (bus or {})
+    if can['can_interface'] == 'udp_multicast' and not only_loopback():
+        raise RuntimeError('start_canopen: a udp_multicast CAN bus here would send on this '
+                           "machine's own interfaces: run inside processes.private_network")
     d = params_dir()
     file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
-    can = CAN_BUS | (bus or {})
     drive = NodeProcess('virtual_drive_node', file('virtual_drive'),
                         can | (drive_params or {}), log_file(log_dir, 'virtual_drive'), env=env)
     heard(can, 0x701, 0x77F, DRIVE_BOOT)
