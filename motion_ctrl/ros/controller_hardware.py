@@ -60,22 +60,13 @@ def _canopen(node, values: dict):
                          'use_sim_time is for topics or sim')
     g = values[None]
     r = node.values
-
-    def log(level: str, text: str) -> None:
-        logger = node.get_logger()
-        if level == 'error':
-            logger.error(text)
-        elif level == 'warning':
-            logger.warning(text)
-        else:
-            logger.info(text)
     return CanopenHardware(
         {a: AxisNodes(values[a]['can_node_id'], values[a]['load_encoder_node_id'],
                       values[a]['eds'], values[a]['torque_per_volt'],
                       round(r[a]['estop_deceleration'] * r[a]['motor_counts_per_m'])
                       if values[a]['estop_quick_stop'] else 0)
          for a in node.axis_names}, node.period, g['can_interface'], g['can_channel'],
-        g['can_bitrate'], log=log)
+        g['can_bitrate'], log=lambda level, text: node._log([(level, text)]))
 
 
 def sim_consistency(values: dict) -> list[str]:

@@ -180,10 +180,13 @@ class ControllerNode(ros_params.RegisterNode):
                 self.loop.stage(axis, changes)
 
     def _log(self, lines) -> None:
+        """(level, text) lines of the core and the hardware: 'error', 'info', else warning."""
         logger = self.get_logger()
         for level, text in lines:         # (rclpy: one severity per call site)
             if level == 'error':
                 logger.error(text)
+            elif level == 'info':
+                logger.info(text)
             else:
                 logger.warning(text)
 

@@ -25,6 +25,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 import msg_defs as md
+from motion_ctrl.ros.hardware_topics import seconds_of
 from motion_ctrl.ros.refusals import RefusalLog, too_large
 
 MAX_TARGET_NAMES = 256
@@ -122,7 +123,7 @@ class TargetInputs:
         targets = self._targets(msg, 'position', 'target_position')
         if not targets:
             return
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = seconds_of(msg.header.stamp)
         if stamp > 0.0 and 0.0 < stamp - self.node.get_clock().now().nanoseconds * 1e-9 \
                 <= MAX_SCHEDULE:
             if len(self.loop.scheduled) + len(targets) > MAX_SCHEDULED:
@@ -183,7 +184,7 @@ class TargetInputs:
                          f'{kind}: send a longer path in parts)')
             return None
         spec = md.read_joint_trajectory(msg)
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = seconds_of(msg.header.stamp)
         return self.loop.prepare(spec), stamp
 
     def _start_trajectory(self, job, stamp: float) -> None:
