@@ -73,6 +73,19 @@ def test_at_rest_holds_the_integrator_output_during_a_move_and_integrates_at_res
     assert not s.integrator_held
 
 
+def test_float_noise_of_a_path_standing_still_is_at_rest():
+    """A coordinate that stands still on a path (y along a side of a square) is sampled as
+    ~5e-16 m/s: at rest for Ixx34 (the integrator integrates) and for Ixx68 (no friction push)."""
+    s = law(kp=1000.0, ki=1e5, friction_ff=0.3, integration_mode='at_rest')
+    for noise in (5e-16, -1e-18, 5e-16):
+        out = tick(s, 1e-4, cmd_vel=noise, target_stopped=False)
+        assert not s.integrator_held
+    assert s.integral == pytest.approx(0.03, abs=1e-12)
+    assert out == pytest.approx(1000.0 * 1e-4 + 0.03, abs=1e-9)          # no ±0.3 V
+    tick(s, 1e-4, cmd_vel=1e-6, target_stopped=False)                      # 1 um/s moves
+    assert s.integrator_held
+
+
 def test_always_integrates_during_a_move():
     s = law(kp=1000.0, ki=1e5, integration_mode='always')
     for _ in range(10):

@@ -17,7 +17,8 @@ below (a position mode only, with the position loop on the load encoder: feedbac
 load): a breakaway aid against stiction, kept below the sliding friction.
 
 The integrator input is off (INTEGRATOR_HELD; its output is held, never zeroed) when
- * integration_mode is `at_rest` (Ixx34 = 1) and the commanded velocity is non-zero;
+ * integration_mode is `at_rest` (Ixx34 = 1) and the commanded velocity is non-zero (beyond
+   REST_VELOCITY, float noise);
  * the output would saturate at output_limit (Ixx69) with this tick's integration: PMAC adds
    nothing to the integrator whenever the total control output saturates. The test is made on
    the final output (after notch and deadband), before committing, so the integrator never
@@ -54,6 +55,13 @@ from motion_ctrl.core.notch import Biquad
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from motion_ctrl.core.config import LawConfig
 
+#: [m/s] a commanded velocity of at most this is at rest, for Ixx34 and Ixx68's sign. A path
+#: evaluates a coordinate that stands still (a side of a square) to ~1e-16 m/s, float noise:
+#: taken as motion it held the integrator along the whole side and flipped friction_ff's sign.
+#: (1 nm/s: a count of the slide encoder in 40 minutes; PMAC's fixed-point command has no such
+#: noise.)
+REST_VELOCITY = 1e-9
+
 
 def _clamp(v: float, lo: float, hi: float) -> float:
     return lo if v < lo else hi if v > hi else v
@@ -80,7 +88,7 @@ class PidLaw:
     def update(law: ServoLaw, dt: float, error: float, raw: float, ff: float, meas: float,
                rate: float, cmd_vel: float, stopped: bool, anti_hunting: bool) -> float:
         c = law.config
-        held = c.integrate_at_rest and cmd_vel != 0.0
+        held = c.integrate_at_rest and not -REST_VELOCITY <= cmd_vel <= REST_VELOCITY
         il = c.integration_limit
         i_old = law.integral
         i_old = -il if i_old < -il else il if i_old > il else i_old   # Ixx63 may have dropped
@@ -197,9 +205,9 @@ class ServoLaw:
         # by the sign of an error outside the anti-hunting window: stiction holds a slide a
         # count or more short, and the integrator alone takes a quarter of a second to creep
         # it in. Below the sliding friction, friction still stops the slide once it is free.
-        if cmd_vel > 0.0:
+        if cmd_vel > REST_VELOCITY:
             friction = c.friction_ff
-        elif cmd_vel < 0.0:
+        elif cmd_vel < -REST_VELOCITY:
             friction = -c.friction_ff
         elif c.breakaway and c.position_mode and target_stopped and not anti and raw:
             friction = c.breakaway if raw > 0.0 else -c.breakaway
