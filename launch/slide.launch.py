@@ -12,7 +12,8 @@ use_sim_time:=true runs the deterministic lockstep simulation: with topics the p
 sim the controller is the clock, ticking as fast as the machine allows.
 
 axes:=x,y (or "[x, y]") sets both nodes' `axes` over the params files. The names go to the nodes
-quoted: ROS's YAML parser reads y, n, on, off as booleans.
+quoted: ROS's YAML parser reads y, n, on, off as booleans. The axes other than x get the shipped
+slide's tuning (the controller's params file tunes x; a file that names them wins).
 """
 import tempfile
 
@@ -22,6 +23,9 @@ from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, Pyth
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from motion_ctrl.core.registers import shipped_tuning
+from motion_ctrl.ros.processes import axis_names
 
 
 def generate_launch_description():
@@ -57,27 +61,34 @@ def generate_launch_description():
     ])
 
 
-def axes_file(context) -> list:
-    """A params file setting `axes` for every node, names quoted; [] when not asked for."""
-    text = LaunchConfiguration('axes').perform(context).strip().strip('[]')
-    names = [n.strip().strip('\'"') for n in text.split(',') if n.strip()]
+def _params_file(prefix: str, lines: list[str]) -> str:
+    """A params file giving every node the parameters of `lines` (`name: value`)."""
+    with tempfile.NamedTemporaryFile('w', prefix=prefix, suffix='.yaml', delete=False) as f:
+        f.write('/**:\n  ros__parameters:\n' + ''.join(f'    {line}\n' for line in lines))
+    return f.name
+
+
+def axes_files(context) -> tuple[list, list]:
+    """Params files for axes:=: ([the shipped slide's tuning for the named axes other than x],
+    [`axes` for every node, the names quoted]); ([], []) when not asked for."""
+    names = axis_names(LaunchConfiguration('axes').perform(context))
     if not names:
-        return []
-    with tempfile.NamedTemporaryFile('w', prefix='motion_ctrl_axes_', suffix='.yaml',
-                                     delete=False) as f:
-        f.write('/**:\n  ros__parameters:\n    axes: [%s]\n'
-                % ', '.join(f"'{n}'" for n in names))
-    return [f.name]
+        return [], []
+    tuning = [f'{k}: ' + (f"'{v}'" if isinstance(v, str) else repr(v))
+              for k, v in shipped_tuning([n for n in names if n != 'x']).items()]
+    axes = "axes: [" + ', '.join(f"'{n}'" for n in names) + ']'
+    return ([_params_file('motion_ctrl_tuning_', tuning)] if tuning else [],
+            [_params_file('motion_ctrl_axes_', [axes])])
 
 
 def nodes(context, use_sim_time, lockstep):
-    axes = axes_file(context)
+    tuning, axes = axes_files(context)
     if LaunchConfiguration('hardware').perform(context) == 'sim':
         return [Node(
             package='motion_ctrl',
             executable='controller',
             name='controller',
-            parameters=[LaunchConfiguration('controller_params'),
+            parameters=[*tuning, LaunchConfiguration('controller_params'),
                         LaunchConfiguration('plant_params'), *axes,
                         {'use_sim_time': use_sim_time, 'hardware': 'sim'}],
             output='screen',
@@ -87,7 +98,7 @@ def nodes(context, use_sim_time, lockstep):
             package='motion_ctrl',
             executable='controller',
             name='controller',
-            parameters=[LaunchConfiguration('controller_params'), *axes,
+            parameters=[*tuning, LaunchConfiguration('controller_params'), *axes,
                         {'use_sim_time': use_sim_time}],
             output='screen',
         ),

@@ -13,6 +13,8 @@ import msg_defs as md
 from kit import COUNT, INCH, running_slide, spin_for
 from msg_defs.status import Status
 from motion_ctrl.ros.client import SlideClient
+from motion_ctrl.core.registers import SHIPPED_SLIDE_TUNING, shipped_tuning
+from motion_ctrl.ros import processes
 from motion_ctrl.ros.processes import params_dir
 
 # No rerun on a stall of the servo link (none in the loop; the amplifier watchdog is a subject).
@@ -154,6 +156,33 @@ def test_the_tables_and_the_plant_registers_live_on_the_controller(sim):
     assert missed > 15, missed                  # about the 20 counts of backlash
     assert abs(compensated) <= 3, compensated
     assert doubled > 15, doubled                # the compensation covers half of it now
+
+
+def test_every_axis_of_the_shipped_files_gets_the_slides_tuning(sim):
+    """params/controller.yaml tunes x; y, named in `axes` only, runs the same shipped tuning
+    (doc/gains.md), not the table's defaults."""
+    c = sim.client
+    from rclpy.parameter_client import AsyncParameterClient
+    params = AsyncParameterClient(c, 'controller')
+    assert c.spin_until(params.services_are_ready, 10.0)
+    names = [f'{a}.{k}' for a in ('x', 'y') for k in SHIPPED_SLIDE_TUNING]
+    got = c.answer(lambda: params.get_parameters(names)).values
+    values = dict(zip(names, (v.string_value or v.double_value for v in got)))
+    assert values == shipped_tuning(('x', 'y')), values
+
+
+def test_an_override_of_another_axis_wins_over_the_shipped_tuning(monkeypatch):
+    started = {}
+
+    class Recorded:
+        def __init__(self, module, params_file=None, params=None, log_path=None, env=None):
+            started[module] = params
+    monkeypatch.setattr(processes, 'NodeProcess', Recorded)
+    processes.start_slide({'axes': "['x', 'y']", 'y.kp': 5000.0})
+    assert started['controller_node'] == shipped_tuning(['y']) | {'axes': "['x', 'y']",
+                                                                    'y.kp': 5000.0}
+    processes.start_slide({'axes': "['x', 'y']"}, params_files=False)
+    assert started['controller_node'] == {'axes': "['x', 'y']"}
 
 
 def test_a_plant_register_is_refused_by_the_plants_rules(sim):

@@ -748,6 +748,13 @@ SHIPPED_SLIDE_TUNING: dict[str, float | str] = {
     'integration_mode': 'at_rest',
 }
 
+
+def shipped_tuning(axes) -> dict[str, float | str]:
+    """SHIPPED_SLIDE_TUNING as `<axis>.<register>` parameters for each of `axes`: the shipped
+    params file tunes x only; start_slide and the launch file give the other axes they are
+    asked for the same slide's tuning (under any file or override that names them)."""
+    return {f'{a}.{k}': v for a in axes for k, v in SHIPPED_SLIDE_TUNING.items()}
+
 GENERATED = {
     'params/controller.yaml': lambda: params_yaml('controller', CONTROLLER_GLOBALS,
                                                   AXIS_REGISTERS, tuning=SHIPPED_SLIDE_TUNING),

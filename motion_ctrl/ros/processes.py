@@ -12,6 +12,8 @@ import subprocess
 import sys
 from typing import Any
 
+from motion_ctrl.core.registers import shipped_tuning
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]     # the source tree, or site-packages
 REPO_PARAMS = ROOT / 'params'
 
@@ -121,18 +123,37 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
                 log_dir=None, params_files: bool = True, env: dict | None = None,
                 plant_env: dict | None = None):
     """Plant and controller with the default params files (which set the registers of axis x;
-    params_files=False: the register table's defaults, for any axis names, the same values but
-    the shipped slide's gains: doc/gains.md)
-    plus overrides, in `env` (default: this process's environment), the plant with `plant_env`
-    added (e.g. MOTION_CTRL_SERVO_DOMAIN=off: off the servo bus, as a plant of another make);
-    returns both."""
+    the other axes named in `controller_params`' `axes` get x's shipped tuning, doc/gains.md;
+    params_files=False: the register table's defaults, for any axis names) plus overrides, in
+    `env` (default: this process's environment), the plant with `plant_env` added (e.g.
+    MOTION_CTRL_SERVO_DOMAIN=off: off the servo bus, as a plant of another make); returns
+    both."""
     d = params_dir()
     file = (lambda n: d / f'{n}.yaml') if params_files else (lambda n: None)
+    if params_files:
+        controller_params = _other_axes_tuned(controller_params)
     plant = NodeProcess('plant_node', file('plant'), plant_params, log_file(log_dir, 'plant'),
                         env=dict(os.environ if env is None else env) | (plant_env or {}))
     controller = NodeProcess('controller_node', file('controller'), controller_params,
                              log_file(log_dir, 'controller'), env=env)
     return plant, controller
+
+
+def axis_names(value) -> list[str]:
+    """The names of an `axes` parameter given as a list or as its text (`['x', 'y']`, `x,y`)."""
+    if isinstance(value, (list, tuple)):
+        return [str(v) for v in value]
+    return [n.strip().strip('\'"') for n in str(value).strip().strip('[]').split(',')
+            if n.strip()]
+
+
+def _other_axes_tuned(controller_params: dict | None) -> dict | None:
+    """The overrides, under them the shipped slide's tuning for the axes they name that the
+    shipped params file does not (it tunes x): every default slide tuned alike."""
+    if not controller_params or 'axes' not in controller_params:
+        return controller_params
+    others = [a for a in axis_names(controller_params['axes']) if a != 'x']
+    return shipped_tuning(others) | controller_params
 
 
 # The plant node's own parameters that mean nothing to a controller running the slide itself.
@@ -143,11 +164,13 @@ def start_sim(controller_params: dict | None = None, plant_params: dict | None =
               log_dir=None, params_files: bool = True, env: dict | None = None):
     """The controller alone, with the slide simulated inside its loop (`hardware: sim`): the
     default params files of both nodes (the plant's `plant:` section configures its slides;
-    params_files=False: the register table's defaults) plus overrides, the plant's as the
-    controller's own parameters (start_slide's plant parameters, those of the plant node alone
-    dropped). Returns (controller,), the processes to stop."""
+    other axes tuned as start_slide's; params_files=False: the register table's defaults) plus
+    overrides, the plant's as the controller's own parameters (start_slide's plant parameters,
+    those of the plant node alone dropped). Returns (controller,), the processes to stop."""
     d = params_dir()
     files = [d / 'controller.yaml', d / 'plant.yaml'] if params_files else None
+    if params_files:
+        controller_params = _other_axes_tuned(controller_params)
     plant = {k: v for k, v in (plant_params or {}).items() if k not in PLANT_NODE_ONLY}
     controller = NodeProcess('controller_node', files,
                              (controller_params or {}) | plant | {'hardware': 'sim'},
