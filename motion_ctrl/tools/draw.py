@@ -12,7 +12,10 @@ The controller runs `feedback: dual` with friction feedforward (PMAC Ixx68) set 
 Coulomb friction in volts (--friction-ff, 0.24 V: motor 0.004 N·m plus slide 10 N through the
 5.08 mm lead, over 0.1 N·m/A × 0.5 A/V): without it each axis stalls for a moment where its
 velocity reverses (the quadrant glitch of every contouring machine), 19 counts on the circle in
-the in-process harness.
+the in-process harness. Both axes have the shipped slide's gains (doc/gains.md) but integrate
+always (PMAC Ixx34 = 0): on a path each axis is commanding a move most of the time, and with the
+shipped Ixx34 = 1 the integrator held through it left the square's corners 11-17 counts out
+over DDS (RMS 3.7-4.2 counts; integrating always, 1.1).
 """
 from __future__ import annotations
 
@@ -34,8 +37,11 @@ PATH_DT = 5e-5        # s: the commanded path is sampled this finely for the con
 
 
 def shape_points(shape: str, start: dict, radius: float, speed: float) -> tuple[tj.Points, tuple]:
-    """The shape's points starting (at rest) where the axes are; its centre."""
-    x0, y0 = start['x'], start['y']
+    """The shape's points, starting (at rest) on the whole slide-encoder count nearest where
+    the axes are; its centre. Both shapes end where they start: on a whole count, which a
+    floored encoder reads as the target from the count up to the next (a point between counts
+    is met, in the fine window, up to 1.6 counts away)."""
+    x0, y0 = (round(start[a] * LOAD_COUNTS_PER_M) / LOAD_COUNTS_PER_M for a in ('x', 'y'))
     if shape == 'circle':
         center = (x0 - radius, y0)                 # start_angle 0: the start is centre + (r, 0)
         return tj.circle(center, radius, speed, start_time=0.1), center
@@ -94,6 +100,24 @@ def plot(results: dict, png: pathlib.Path, magnify: float = 200.0) -> None:
     fig.tight_layout()
     fig.savefig(png, dpi=110)
     plt.close(fig)
+
+
+def commanded(client, timeout: float = 5.0) -> dict | None:
+    """Where the controller commands the axes now ({axis: m}, a reference_states sample), or
+    None. Read when needed, not followed: a 1 kHz stream more in this process would queue its
+    events ahead of the status words the example waits on."""
+    from sensor_msgs.msg import JointState
+
+    import msg_defs as md
+    command: dict = {}
+    sub = client.create_subscription(JointState, md.REFERENCE_STATES,
+                                     lambda m: command.update(zip(m.name, m.position)),
+                                     md.SERVO_READ_QOS)
+    try:
+        client.spin_until(lambda: all(a in command for a in AXES), timeout)
+    finally:
+        client.destroy_subscription(sub)
+    return {a: command[a] for a in AXES} if all(a in command for a in AXES) else None
 
 
 class _ActionSender:
@@ -167,6 +191,7 @@ def main(argv=None) -> int:
     from sensor_msgs.msg import JointState
 
     import msg_defs as md
+    from msg_defs.status import Status
     from motion_ctrl.ros.client import SlideClient
     from motion_ctrl.ros.processes import first_fault, start_slide
 
@@ -174,7 +199,8 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     axes = '[' + ', '.join(f"'{a}'" for a in AXES) + ']'     # quoted: y is a YAML boolean
     ctrl = {'axes': axes} | {f'{a}.{k}': v for a in AXES for k, v in
-                             (('feedback', args.feedback), ('friction_ff', args.friction_ff))}
+                             (('feedback', args.feedback), ('friction_ff', args.friction_ff),
+                              ('integration_mode', 'always'))}
     rt = {'realtime_priority': args.realtime_priority}
     ctrl |= rt | extra
     print(f'draw: starting plant and controller for axes x, y (ROS_DOMAIN_ID={domain}, logs in '
@@ -182,23 +208,17 @@ def main(argv=None) -> int:
     nodes = start_slide(ctrl, {'axes': axes} | rt, log_dir=out)
     rclpy.init()
     client = SlideClient(axes=AXES)
-    command: dict = {}
     truth: list = []
-
-    def on_reference(msg):
-        command.update(zip(msg.name, msg.position))
 
     def on_truth(msg):
         d = dict(zip(msg.name, msg.position))
         if all(md.load_joint(a) in d for a in AXES):
             truth.append((time.time(), d[md.load_joint('x')], d[md.load_joint('y')]))
-    client.create_subscription(JointState, md.REFERENCE_STATES, on_reference, md.SERVO_READ_QOS)
     client.create_subscription(JointState, md.PLANT_STATES, on_truth, md.SERVO_READ_QOS)
     results = {}
     code = 0
     try:
-        if not client.wait_ready(20.0) or not client.spin_until(
-                lambda: all(a in command for a in AXES), 5.0):
+        if not client.wait_ready(20.0) or commanded(client) is None:
             print(f'draw: the nodes did not come up ({client.not_ready()}); see the logs',
                   file=sys.stderr)
             return 1
@@ -208,7 +228,11 @@ def main(argv=None) -> int:
         print(f'{"shape":<8}{"points":>7}{"time [s]":>9}{"contour RMS":>13}{"peak":>8}'
               f'{"x error":>9}{"y error":>9}{done_column:>13}   (counts; after 1st quarter)')
         for shape in shapes:
-            start = dict(command)
+            start = commanded(client)
+            if start is None:
+                print(f'{shape:<8}no reference_states from the controller (the logs are in {out})')
+                code = 1
+                continue
             points, _ = shape_points(shape, start, args.radius, args.speed)
             truth.clear()
             t0 = time.time()
@@ -225,7 +249,8 @@ def main(argv=None) -> int:
             client.spin_for(0.05)
             samples = np.array(truth).reshape(-1, 3)
             if not done or len(samples) == 0:
-                why = first_fault(nodes) or 'no fault logged'
+                why = first_fault(nodes) or 'no fault logged; ' + ', '.join(
+                    f'{a} {Status(client.status[a] or 0)!r}' for a in AXES)
                 print(f'{shape:<8}did not finish: {why} (the logs are in {out})')
                 code = 1
                 continue
