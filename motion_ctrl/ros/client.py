@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import time
 
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
@@ -15,6 +14,7 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 import msg_defs as md
+from motion_ctrl.ros import ros_env
 from msg_defs.status import Status
 
 
@@ -25,11 +25,9 @@ class SlideClient(Node):
     def __init__(self, axes=('x',), name='slide_client', context=None, services=False,
                  truth=True):
         super().__init__(name, context=context)
-        # A wait set, not EventsExecutor (the nodes' executor): its queue keeps every arrival in
-        # order, and a client slower than the 1 kHz plant_states then took a status word seconds
-        # after it came (seen in draw on the loaded VM). A wait set takes what is there now; the
-        # stream's older samples are dropped by its best-effort reader.
-        self.executor_ = SingleThreadedExecutor(context=self.context)
+        # (The client shares two cores with two 1 kHz nodes: the lighter executor leaves them
+        # more room.)
+        self.executor_ = ros_env.executor(self.context)
         self.executor_.add_node(self)
         self.axes = list(axes)
         self.pub_target = self.create_publisher(JointState, md.TARGET_POSITION, 10)
