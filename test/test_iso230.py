@@ -191,7 +191,7 @@ def test_report_table_and_plot(tmp_path):
 
 # -- the whole procedure on the in-process slide ---------------------------------------------------
 class HarnessAxis:
-    """calibrate.AxisUnderTest's interface on the in-process harness (no ROS): moves wait for
+    """session.AxisUnderTest's interface on the in-process harness (no ROS): moves wait for
     MOTION_DONE, readings are the linear encoder's counts at rest."""
 
     def __init__(self, registers, plant=None, latency_ticks=0):
