@@ -61,10 +61,11 @@ def generate_launch_description():
     ])
 
 
-def _params_file(prefix: str, lines: list[str]) -> str:
-    """A params file giving every node the parameters of `lines` (`name: value`)."""
+def _params_file(prefix: str, node: str, lines: list[str]) -> str:
+    """A params file giving node `node` (`/**`: every node) the parameters of `lines`
+    (`name: value`)."""
     with tempfile.NamedTemporaryFile('w', prefix=prefix, suffix='.yaml', delete=False) as f:
-        f.write('/**:\n  ros__parameters:\n' + ''.join(f'    {line}\n' for line in lines))
+        f.write(f'{node}:\n  ros__parameters:\n' + ''.join(f'    {line}\n' for line in lines))
     return f.name
 
 
@@ -77,8 +78,11 @@ def axes_files(context) -> tuple[list, list]:
     tuning = [f'{k}: ' + (f"'{v}'" if isinstance(v, str) else repr(v))
               for k, v in shipped_tuning([n for n in names if n != 'x']).items()]
     axes = "axes: [" + ', '.join(f"'{n}'" for n in names) + ']'
-    return ([_params_file('motion_ctrl_tuning_', tuning)] if tuning else [],
-            [_params_file('motion_ctrl_axes_', [axes])])
+    # rcl applies a node's sections in the order the files first name them: the tuning under
+    # the controller's own name, first, so that controller_params overrides it; `axes` under
+    # /**, after controller_params, so that it overrides that file's.
+    return ([_params_file('motion_ctrl_tuning_', 'controller', tuning)] if tuning else [],
+            [_params_file('motion_ctrl_axes_', '/**', [axes])])
 
 
 def nodes(context, use_sim_time, lockstep):
