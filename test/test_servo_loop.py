@@ -201,7 +201,7 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     from motion_ctrl.core.dual_loop import SampledCorrection
     c = SampledCorrection(CorrectionConfig.of(dict(
         correction_tolerance=2 * COUNT, correction_max_moves=200, load_counts_per_m=1 / COUNT,
-        settling_time=0.02)))
+        settling_time=0.02, coarse_position_tolerance=10 * COUNT)))
     c.start_now()
 
     def settled(error_counts):
@@ -217,6 +217,13 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     assert settled(-30) == pytest.approx(-30 * COUNT)        # overshot: still corrected
     assert settled(81) is None and c.phase == c.DONE            # > 4 × the first: no more
     assert c.diverged == (20, 81) and c.moves == 2
+    # Within 4 coarse windows (40 counts) an error is an overshoot on the way in, however small
+    # the first: a 3-count correction across the backlash left the slide 14 counts the other
+    # side (over DDS), and is corrected.
+    c.start_now()
+    assert settled(3) == pytest.approx(3 * COUNT)
+    assert settled(-21) == pytest.approx(-21 * COUNT)
+    assert settled(1) is None and c.phase == c.DONE and c.diverged is None
 
     loop = _loop(sim_time=True, feedback='motor')
     axis = loop.axes['x']

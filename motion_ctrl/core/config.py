@@ -119,6 +119,7 @@ class CorrectionConfig(Config):
     correction_max_moves: int
     load_counts_per_m: float
     settling_time: float
+    coarse_position_tolerance: float
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,8 +18,9 @@
   encoder still (within one count) for a settling time: the slide is read at rest (it can coast
   on into the gap after the motor stopped), and the −TE term takes care of a motor that stopped
   short of its command.
-  The sequence ends when |V1| < correction_tolerance (the load is where it should be) or after
-  correction_max_moves.
+  The sequence ends when |V1| < correction_tolerance (the load is where it should be), after
+  correction_max_moves, or when the load error grows beyond DIVERGED times the first one and
+  DIVERGED coarse windows (the corrections drive the slide away).
 """
 from __future__ import annotations
 
@@ -64,6 +65,7 @@ class SampledCorrection:
         self._load_ref: int | None = None
         self._load_still = 0.0
         self.tolerance_counts = 1
+        self.near_counts = 0.0       # the coarse window [counts]: no runaway within DIVERGED of it
         self.max_moves = 0
         self.settle_time = 0.0
         self.configure(config or defaults(CorrectionConfig))
@@ -73,6 +75,7 @@ class SampledCorrection:
         self.tolerance_counts = max(1, round(config.correction_tolerance
                                              * config.load_counts_per_m))
         self.max_moves = config.correction_max_moves
+        self.near_counts = config.coarse_position_tolerance * config.load_counts_per_m
         self.settle_time = config.settling_time
 
     def start(self) -> None:
@@ -136,10 +139,12 @@ class SampledCorrection:
             self.phase, self.exhausted = self.DONE, True
             return None
         first = self._first_error
-        if first is not None and abs(load_error_counts) > DIVERGED * abs(first):
-            # Galil's loop would go on. Corrections may overshoot on their way in (through the
-            # backlash), but an error several times the first one means they drive the slide
-            # away (stale or wrong readings, a slipping or blocked slide): stop.
+        if first is not None and abs(load_error_counts) > DIVERGED * max(abs(first),
+                                                                          self.near_counts):
+            # Galil's loop would go on. Corrections may overshoot on their way in: a few counts
+            # of correction across the backlash can leave the slide ~20 counts the other side.
+            # An error several times the first one, and several coarse windows out, means they
+            # drive the slide away (stale or wrong readings, a slipping or blocked slide): stop.
             self.phase, self.diverged = self.DONE, (first, load_error_counts)
             return None
         if first is None:
