@@ -24,7 +24,7 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
-from motion_ctrl.core.registers import shipped_tuning
+from motion_ctrl.core.registers import shipped_tuning_yaml
 from motion_ctrl.ros.processes import axis_names
 
 
@@ -75,8 +75,7 @@ def axes_files(context) -> tuple[list, list]:
     names = axis_names(LaunchConfiguration('axes').perform(context))
     if not names:
         return [], []
-    tuning = [f'{k}: ' + (f"'{v}'" if isinstance(v, str) else repr(v))
-              for k, v in shipped_tuning([n for n in names if n != 'x']).items()]
+    tuning = shipped_tuning_yaml([n for n in names if n != 'x'])
     axes = "axes: [" + ', '.join(f"'{n}'" for n in names) + ']'
     # rcl applies a node's sections in the order the files first name them: the tuning under
     # the controller's own name, first, so that controller_params overrides it; `axes` under

@@ -755,6 +755,13 @@ def shipped_tuning(axes) -> dict[str, float | str]:
     asked for the same slide's tuning (under any file or override that names them)."""
     return {f'{a}.{k}': v for a in axes for k, v in SHIPPED_SLIDE_TUNING.items()}
 
+
+def shipped_tuning_yaml(axes) -> list[str]:
+    """shipped_tuning(axes) as params-file lines (`y.kp: 9200.0`), each value written as its
+    register is typed (as in params/controller.yaml)."""
+    return [f'{a}.{k}: {_yaml_value(CONTROLLER_AXIS[k], v)}'
+            for a in axes for k, v in SHIPPED_SLIDE_TUNING.items()]
+
 GENERATED = {
     'params/controller.yaml': lambda: params_yaml('controller', CONTROLLER_GLOBALS,
                                                   AXIS_REGISTERS, tuning=SHIPPED_SLIDE_TUNING),
