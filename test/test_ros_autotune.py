@@ -16,6 +16,7 @@ import sys
 import pytest
 import yaml
 
+from kit import long_run
 from motion_ctrl.core.registers import CONTROLLER_AXIS, LOAD_COUNTS_PER_M, SHIPPED_SLIDE_TUNING
 
 # Each run starts from the register table's default gains (Galil's tuning procedure), not from
@@ -96,6 +97,11 @@ def _autotune(node_env, tmp_path, plant: list[str], resonance_hz: float):
     return run, regs
 
 
+# Opt-in (60 s): test_autotune.test_a_resonance_that_limits_the_loop_gets_a_notch holds the same
+# rule on this plant without ROS, and the stiff run above takes the whole tool over ROS in the
+# default suite, which is kept well under CI's 15 minutes.
+@long_run('60 s; test_autotune gives this plant its notch without ROS, the stiff run above '
+          'takes the tool over ROS')
 @pytest.mark.timeout(300)
 def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
     run, regs = _autotune(node_env, tmp_path, HEAVY_SLIDE, resonance_hz=45.8)

@@ -232,8 +232,14 @@ def test_a_goal_through_several_points_succeeds_within_its_goal_tolerance(ready)
 
 @pytest.mark.timeout(120)
 def test_the_slide_braked_part_way_violates_the_path_tolerance(ready):
+    """The goal's own path tolerance for x, 0.2 mm: crossed ~30 ms after the brake. (With the
+    slide braked, the motor rings against the locked screw whenever the command reaches the
+    amplifier 2 ms late, and in 1 run of 8 the drive's OVERSPEED trip (0.15 m/s) came before
+    the default 1 mm was crossed, ~130 ms after the brake: a second right answer, not this
+    test's question. In process (test_follow_goal) the default 1 mm.)"""
     c = ready
-    run = c.send(c.goal({'x': _away(c, 'x', 0.008), 'y': _away(c, 'y', 0.004)}))
+    run = c.send(c.goal({'x': _away(c, 'x', 0.008), 'y': _away(c, 'y', 0.004)},
+                        path_tolerance=[('x', 0.0002)]))
     c.spin_for(0.5)
     c.set_plant('x.brake', 1)
     status, result = c.outcome(run)
@@ -242,7 +248,7 @@ def test_the_slide_braked_part_way_violates_the_path_tolerance(ready):
                                            F.Result.PATH_TOLERANCE_VIOLATED), result.error_string
     assert result.error_string.startswith('x: position error +') or \
         result.error_string.startswith('x: position error -'), result.error_string
-    assert 'exceeds the path tolerance 0.001 m' in result.error_string
+    assert 'exceeds the path tolerance 0.0002 m' in result.error_string
 
 
 @pytest.mark.timeout(120)
