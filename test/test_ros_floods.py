@@ -3,7 +3,7 @@ of the controller's loop process, against plant and controller as processes with
 parameters. Behaviour only: the latest target wins and lands, the oversized inputs are refused
 with their size (never echoed), the loop runs on, and a 50 ms freeze mid-move neither sprints
 nor loses the move. What a flood costs the loop's rate is measured by `soak --floods`
-(motion_ctrl/tools/floods.py), not asserted here.
+(motion_ctrl/procedures/floods.py), not asserted here.
 """
 from __future__ import annotations
 

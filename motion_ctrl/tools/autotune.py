@@ -37,7 +37,7 @@ import numpy as np
 from motion_ctrl.analysis import autotune as at
 from motion_ctrl.analysis import rest
 from motion_ctrl.core.registers import INCH, axis_defaults
-from motion_ctrl.tools.session import session_arguments
+from motion_ctrl.procedures.session import session_arguments
 
 MOVES = (('0 -> 1 in (after the return to 0)', INCH), ('+2 in', 2 * INCH),
          ('back to +1 in (reversal)', INCH))
@@ -345,7 +345,7 @@ def propose_and_write(response: at.AxisResponse, current: dict, args, out: pathl
 def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     from motion_ctrl.ros.client import FAULTS
     from msg_defs.status import Status
-    from motion_ctrl.tools.session import SessionError
+    from motion_ctrl.procedures.session import SessionError
     from rclpy.parameter import parameter_value_to_python
     word = client.status[args.axis] or 0
     if word & FAULTS or not word & Status.ENABLED:
@@ -529,7 +529,7 @@ def main(argv=None) -> int:
         if not (math.isfinite(getattr(args, name)) and getattr(args, name) > 0):
             print(f'autotune: --{name.replace("_", "-")} must be > 0 s', file=sys.stderr)
             return 2
-    from motion_ctrl.tools.session import SessionError, axis_session
+    from motion_ctrl.procedures.session import SessionError, axis_session
     offline = args.source is not None and not (args.apply or args.spawn)
     try:
         if offline:

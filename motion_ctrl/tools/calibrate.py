@@ -28,7 +28,7 @@ import numpy as np
 
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.registers import INCH
-from motion_ctrl.tools.session import (AxisUnderTest, SessionError, axis_session, pair,
+from motion_ctrl.procedures.session import (AxisUnderTest, SessionError, axis_session, pair,
                                        session_arguments, spawned_hardware)
 
 COMP_REGISTERS = ('backlash_distance', 'backlash_table', 'backlash_table_spacing',

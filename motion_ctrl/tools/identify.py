@@ -50,7 +50,7 @@ import numpy as np
 
 from motion_ctrl.analysis import identify as idf
 from motion_ctrl.core import excitation as ex
-from motion_ctrl.tools.session import pair, session_arguments
+from motion_ctrl.procedures.session import pair, session_arguments
 
 EXCITATION_REGISTERS = ('excitation_signal', 'excitation_amplitude', 'excitation_band_low',
                         'excitation_band_high', 'excitation_duration', 'excitation_points',
@@ -547,7 +547,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     from rclpy.parameter import parameter_value_to_python
-    from motion_ctrl.tools.session import SessionError, axis_session
+    from motion_ctrl.procedures.session import SessionError, axis_session
     try:
         with axis_session(args, 'identify', services=True) as (client, axis, out):
             rate = client.answer(lambda: axis.params.get_parameters(['servo_rate'])).values[0]

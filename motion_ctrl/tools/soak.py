@@ -10,7 +10,7 @@ done, a loaded bridge's copies were not), and the RSS
 of both nodes' processes (the loop on the servo bus, the bridge) after WARM_UP_MOVES and at the
 end. The churn test (test/test_ros_churn.py) drives the same `Soak` with 20 visitors and a
 recorder. `scripts/soak --floods` instead floods the loop with targets and oversized inputs and
-prints its rate before and during each (motion_ctrl.tools.floods).
+prints its rate before and during each (motion_ctrl.procedures.floods).
 """
 from __future__ import annotations
 
@@ -207,10 +207,10 @@ def main(argv=None) -> int:
     ap.add_argument('-o', '--out', default=None, help='log directory (default out/soak-<time>)')
     ap.add_argument('--floods', action='store_true',
                     help='instead: floods and oversized inputs, the loop rate before and during '
-                         'each (motion_ctrl.tools.floods, doc/input_limits.md)')
+                         'each (motion_ctrl.procedures.floods, doc/input_limits.md)')
     a = ap.parse_args(argv)
     if a.floods:
-        from motion_ctrl.tools import floods
+        from motion_ctrl.procedures import floods
         return floods.main(a.realtime_priority, a.servo_bus, a.out)
     domain = ros_env.private_domain()
     import rclpy
