@@ -8,6 +8,7 @@ import pytest
 
 from kit import INCH
 from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.commands import CommandResult
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from msg_defs.status import Status as S
@@ -69,6 +70,17 @@ def test_targets_and_jogs_refused_while_a_stop_decelerates_then_accepted(kind):
         assert not ok and f'a {kind.upper()} is in progress' in reason, reason
     _stop_distance(h)
     assert h.axis.move_to(0.0) == (True, '')                   # at rest: a new move is fine
+
+
+def test_a_command_answers_accepted_or_the_reason_it_was_refused():
+    """Every command answers a CommandResult: a tuple, so `ok, reason = ...` reads it, with
+    named fields for code that keeps it."""
+    h = _cruising()
+    answer = h.axis.jog(2 * DEFAULTS['max_velocity'])
+    assert isinstance(answer, CommandResult) and not answer.accepted
+    assert answer.reason == (f"x: jog at {2 * DEFAULTS['max_velocity']:g} m/s refused: above "
+                             f"max_velocity {DEFAULTS['max_velocity']:g} m/s"), answer.reason
+    assert h.axis.stop() == CommandResult(accepted=True, reason='')
 
 
 @pytest.mark.parametrize('command, why', [

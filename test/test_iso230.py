@@ -215,7 +215,7 @@ class HarnessAxis:
         values = []
         for _ in range(average):
             self.h.tick()
-            values.append(self.h.plant.encoder_counts()[1] / self.h.axis._load_cpm)
+            values.append(self.h.plant.encoder_counts()[1] / self.h.axis.config.load_counts_per_m)
         return float(np.mean(values))
 
 

@@ -4,7 +4,8 @@ simulated slide (SimHardware) and is held up mid-move while the slide's amplifie
 itself, as the plant node does while the controller's process is frozen (SIGSTOP)."""
 import pytest
 
-from motion_ctrl.core.axis import OVERSPEED_RATIO, Axis
+from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.config import OVERSPEED_RATIO
 from motion_ctrl.core.registers import (AXIS_REGISTERS, LOAD_COUNTS_PER_M, axis_defaults,
                                         consistency)
 from motion_ctrl.core.servo_loop import ServoLoop

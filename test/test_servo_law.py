@@ -19,7 +19,7 @@ from kit import COUNT
 from motion_ctrl.core import notch
 from motion_ctrl.core.registers import AXIS_REGISTERS, CONTROLLER_AXIS, axis_defaults, consistency
 from motion_ctrl.core.config import LawConfig, register_fields
-from motion_ctrl.core.servo_law import ServoLaw
+from motion_ctrl.core.servo_law import AntiWindupStrategy, ServoLaw
 
 T = 1e-3
 HALF_COUNT = 0.5 * COUNT        # half a linear count of the Galil slide, m
@@ -98,6 +98,19 @@ def test_always_integrates_during_a_move():
 
 # ---------------------------------------------------------------------------------------------
 # Ixx69 saturation, Ixx63 integration limit, Ixx67 error limit
+
+@pytest.mark.parametrize('mode, strategies', [
+    ('position_pid', {'conditional_integration', 'integration_limit', 'wind_down_only'}),
+    ('velocity_pid', {'conditional_integration', 'integration_limit', 'wind_down_only'}),
+    ('position_ipd', {'state_clamp', 'wind_down_only'}),
+    ('velocity_ipd', {'state_clamp', 'wind_down_only'})])
+def test_each_law_names_its_anti_windup_strategies(mode, strategies):
+    """PMAC's PID integrates conditionally (Ixx69) within its limit (Ixx63); RMC's I-PD clamps
+    its one state; both only wind down inside anti-hunting's window (the tests below)."""
+    s = law(mode=mode)
+    assert all(isinstance(a, AntiWindupStrategy) for a in s.anti_windup)
+    assert {a.value for a in s.anti_windup} == strategies
+
 
 def test_no_wind_up_while_the_output_is_saturated():
     s = law(kp=1e4, ki=1e5, output_limit=10.0)

@@ -29,13 +29,13 @@ from typing import Final
 
 from msg_defs.status import Status
 from motion_ctrl.core.backlash import BacklashCompensation
-from motion_ctrl.core.dual_loop import SampledCorrection, feedback_encoders
+from motion_ctrl.core.dual_loop import SampledCorrection
 from motion_ctrl.core.commands import AxisCommands
 from motion_ctrl.core.gather import Gather
 from motion_ctrl.core.hunting import Hunting
 from motion_ctrl.core.profile import Profile
-from motion_ctrl.core.config import (BacklashConfig, CorrectionConfig, LawConfig, ProfileConfig,
-                                     SettlingConfig)
+from motion_ctrl.core.config import (AxisConfig, BacklashConfig,
+                                     CorrectionConfig, LawConfig, ProfileConfig, SettlingConfig)
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults, refusals
 from motion_ctrl.core.servo_law import ServoLaw
 from motion_ctrl.core.settling import Settling, status_word
@@ -65,8 +65,6 @@ _OVERSPEED: Final = int(Status.OVERSPEED)
 # on a late servo thread, never catching up). Late ticks up to this are stepped as they come:
 # the slide ran on meanwhile on the held command.
 STALL_PERIODS: Final = 5
-# overspeed_velocity 0: this many times max_velocity.
-OVERSPEED_RATIO: Final = 1.5
 
 _S_IDLE: Final = SampledCorrection.IDLE
 _S_CORRECTING: Final = SampledCorrection.CORRECTING
@@ -138,32 +136,11 @@ class Axis(AxisCommands):
         old = self.r
         self.servo.configure(LawConfig.of_checked(r))
         self.r = r
-        # What the servo tick needs, derived once here rather than every tick.
-        feedback = r['feedback']
-        self._motor_side = feedback_encoders(feedback)[0] == 'motor'
-        self._vel_on_load = feedback == 'load'
-        self._sampled_fb = feedback == 'sampled'
-        self._motor_cpm: float = r['motor_counts_per_m']
-        self._load_cpm: float = r['load_counts_per_m']
-        # RMC: anti-hunting below half a raw count. Inclusive (by a hair): a target halfway
-        # between two counts can be held from either, so the integrator must stop there too.
-        cpm = self._loop_cpm = self._motor_cpm if self._motor_side else self._load_cpm
-        self._half = 0.5 * (1 + 1e-6) / cpm
-        # window_centre count_middle: the at-rest windows judge the position as the middle of
-        # the count the encoder reads (a quadrature counter reads its lower edge).
-        self._shift: float = 0.5 / cpm if r['window_centre'] == 'count_middle' else 0.0
-        self._fe_fatal: float = r['following_error_fatal']
-        self._fe_warn: float = r['following_error_warning']
-        self._soft_lo: float = r['soft_limit_min']
-        self._soft_hi: float = r['soft_limit_max']
-        self._max_vel: float = r['max_velocity']
-        self._max_acc: float = r['max_acceleration']
-        self._max_jerk: float = r['max_jerk']
-        self._stop_dec: float = r['stop_deceleration']
-        self._estop_dec: float = r['estop_deceleration']
-        self._overspeed: float = r['overspeed_velocity'] or OVERSPEED_RATIO * r['max_velocity']
+        # What the servo tick and the commands read, typed and derived once here.
+        self.config = c = AxisConfig.of_checked(r)
+        feedback = c.feedback
         self._stall: float = STALL_PERIODS * T
-        self.hunting.configure(r['hunting_reversals'])
+        self.hunting.configure(c.hunting_reversals)
         if old and old['feedback'] != feedback and self.homed:
             self._rehome_command()
 
@@ -171,12 +148,12 @@ class Axis(AxisCommands):
     @property
     def motor_side_loop(self) -> bool:
         """Position loop closed on the motor encoder: compensation applies there only."""
-        return self._motor_side
+        return self.config.motor_side
 
     @property
     def loop_counts_per_m(self) -> float:
         """Counts per metre of the encoder the position loop closes on."""
-        return self._loop_cpm
+        return self.config.loop_counts_per_m
 
     @property
     def word(self) -> int:
@@ -222,7 +199,7 @@ class Axis(AxisCommands):
         self.sampled_offset = 0.0
         self.sampled.cancel()
         self.settling.idle()
-        if self._motor_side:
+        if self.config.motor_side:
             pos = self.motor_pos - self.correction
         else:
             pos = self.load_pos
@@ -241,8 +218,8 @@ class Axis(AxisCommands):
     def home(self, motor_counts: float, load_counts: float) -> None:
         """First feedback: take the encoders as they are and close the loop there (unless a
         fault came first: then it stays open until reset and enable)."""
-        self.motor_pos = motor_counts / self._motor_cpm
-        self.load_pos = load_counts / self._load_cpm
+        self.motor_pos = motor_counts / self.config.motor_counts_per_m
+        self.load_pos = load_counts / self.config.load_counts_per_m
         self.backlash.reset(self.motor_pos)
         self.correction = 0.0
         self.homed = True
@@ -301,7 +278,7 @@ class Axis(AxisCommands):
             self._read_encoders(motor_counts, load_counts, sample_dt)
         if not self.enabled:
             return self._update_open()
-        if abs(self.motor_vel) > self._overspeed:
+        if abs(self.motor_vel) > self.config.overspeed:
             self._overspeed_fault()
             return 0.0
         self._step_command(dt, age)
@@ -319,8 +296,8 @@ class Axis(AxisCommands):
     # The stages of the tick, in order.
     def _read_encoders(self, motor_counts: float, load_counts: float, sample_dt: float) -> None:
         """1. Both encoders; velocity and acceleration over the time the sample covers."""
-        motor_pos = motor_counts / self._motor_cpm
-        load_pos = load_counts / self._load_cpm
+        motor_pos = motor_counts / self.config.motor_counts_per_m
+        load_pos = load_counts / self.config.load_counts_per_m
         motor_vel = (motor_pos - self.motor_pos) / sample_dt
         load_vel = (load_pos - self.load_pos) / sample_dt
         self.motor_acc = (motor_vel - self.motor_vel) / sample_dt
@@ -342,7 +319,7 @@ class Axis(AxisCommands):
         if self._guard:
             self._guard_tick(dt)
         position = p.position
-        if self._motor_side:
+        if self.config.motor_side:
             correction = self.correction = self.backlash.step(position, dt)
             loop_cmd = position + correction
             loop_pos = self.motor_pos
@@ -350,7 +327,7 @@ class Axis(AxisCommands):
         else:
             loop_cmd = position
             loop_pos = self.actual_pos = self.load_pos
-        if self._vel_on_load:
+        if self.config.velocity_on_load:
             self.actual_vel, self._loop_acc = self.load_vel, self.load_acc
         else:
             self.actual_vel, self._loop_acc = self.motor_vel, self.motor_acc
@@ -364,11 +341,11 @@ class Axis(AxisCommands):
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
         measured state, in the profile's frame; a path stepped on by STALL_PERIODS only."""
         p = self.profile
-        if self._motor_side:
+        if self.config.motor_side:
             position, velocity = self.motor_pos - self.correction, self.motor_vel
         else:
             position = self.load_pos
-            velocity = self.load_vel if self._vel_on_load else self.motor_vel
+            velocity = self.load_vel if self.config.velocity_on_load else self.motor_vel
         if not (p.moving and p.rebase(position, velocity)):
             p.step(self._stall)
 
@@ -379,12 +356,12 @@ class Axis(AxisCommands):
         the load loop's limit cycle across the backlash the slide bounces in the gap at twice
         the motor's speed, 0.23 m/s in the headline table's `load` row.)"""
         self._trip(_OVERSPEED, 'OVERSPEED', f'motor velocity {self.motor_vel:+.4f} m/s beyond '
-                   f'overspeed_velocity {self._overspeed:g} m/s')
+                   f'overspeed_velocity {self.config.overspeed:g} m/s')
 
     def _following_error_fatal(self) -> bool:
         """5. Beyond following_error_fatal (PMAC Ixx11) the loop opens (the warning, Ixx12, is a
         status bit)."""
-        fe, fatal = self.following_error, self._fe_fatal
+        fe, fatal = self.following_error, self.config.following_error_fatal
         if not (fatal > 0.0 and abs(fe) > fatal):
             return False
         self._trip(_FE_FATAL, 'FOLLOWING_ERROR_FATAL', f'following error {fe * 1e3:+.3f} mm '
@@ -410,9 +387,10 @@ class Axis(AxisCommands):
             p = self.profile
             velocity = p.velocity
             vel = self.actual_vel   # (positional: keywords cost 0.13 µs a call here)
+            c = self.config
             self.output = self.servo.update(
                 sample_dt, self._loop_cmd, velocity, p.acceleration, self._loop_pos, vel, vel,
-                self._loop_acc, velocity == 0.0 and not p.moving, self._half, self._shift)
+                self._loop_acc, velocity == 0.0 and not p.moving, c.half_count, c.window_shift)
         return self.output
 
     def _update_status(self, sample_dt: float, motor_counts) -> None:
@@ -421,7 +399,7 @@ class Axis(AxisCommands):
         settled."""
         p = self.profile
         bits = self.settling.step(sample_dt, p.position, p.velocity, p.done,
-                                  self.actual_pos + self.sampled_offset + self._shift,
+                                  self.actual_pos + self.sampled_offset + self.config.window_shift,
                                   self.actual_vel)
         if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
@@ -447,14 +425,14 @@ class Axis(AxisCommands):
 
     def _update_open(self) -> float:
         """Loop open: the command follows the actual position so closing it is bumpless."""
-        if self._motor_side:
+        if self.config.motor_side:
             self.profile.hold(self.motor_pos - self.correction)
             self.actual_pos = self.motor_pos - self.correction - self.sampled_offset
             self.actual_vel = self.motor_vel
         else:
             self.profile.hold(self.load_pos)
             self.actual_pos = self.load_pos
-            self.actual_vel = self.load_vel if self._vel_on_load else self.motor_vel
+            self.actual_vel = self.load_vel if self.config.velocity_on_load else self.motor_vel
         self.output = 0.0
         self._compose(self.settling.open_loop_bits())
         return 0.0
@@ -464,10 +442,11 @@ class Axis(AxisCommands):
         s = self.sampled
         assert self.target is not None           # (called only while a target is set)
         load_error = self.target - self.load_pos
+        cpm = self.config.load_counts_per_m
         v2 = None if dt <= 0.0 else s.update(
             dt, profile_done=self.profile.done, motor_settled=bool(bits & _DONE),
-            motor_counts=int(motor_counts), load_counts=round(self.load_pos * self._load_cpm),
-            load_error_counts=round(load_error * self._load_cpm),
+            motor_counts=int(motor_counts), load_counts=round(self.load_pos * cpm),
+            load_error_counts=round(load_error * cpm),
             motor_error=self.following_error, load_error=load_error)
         if v2 is not None:
             self._correct_by(v2)
@@ -499,7 +478,7 @@ class Axis(AxisCommands):
         s = motion_bits | self._faults | self._sticky
         if self.enabled:
             s |= _ENABLED
-            w = self._fe_warn
+            w = self.config.following_error_warning
             if w > 0.0 and abs(self.following_error) > w:
                 s |= _FE_WARNING
             servo = self.servo
@@ -509,7 +488,7 @@ class Axis(AxisCommands):
                 s |= _INTEGRATOR_HELD
             if self.sampled.phase == _S_CORRECTING:
                 s |= _CORRECTING | _MOVING
-        if self._motor_side and self.backlash.active:
+        if self.config.motor_side and self.backlash.active:
             s |= _BACKLASH
         if s != self._word:
             self._word = s

@@ -1,10 +1,8 @@
 """The commands of one servo axis and their rules (PMAC / Galil / RMP), as methods of
-`Axis` (motion_ctrl.core.axis). Each returns (accepted, reason): a refused one changes nothing
-but the LIMIT bit where doc/interface.md says so.
-
-Commands (`move_to`, `jog`, `stop`, ...) return (accepted, reason): a refused one changes nothing
-but the LIMIT bit where doc/interface.md says so. The axis starts with the loop closed at the
-position the encoders report on the first tick (PMAC Ixx80 = 1, power-on enable).
+`Axis` (motion_ctrl.core.axis). Each answers a `CommandResult` (accepted, reason): a refused
+one changes nothing but the LIMIT bit where doc/interface.md says so. The axis starts with
+the loop closed at the position the encoders report on the first tick (PMAC Ixx80 = 1,
+power-on enable).
 
 Motion commands and the status word (RMP semantics, see motion_ctrl.core.settling):
 
@@ -49,13 +47,14 @@ first); at rest they apply.
 """
 from __future__ import annotations
 
-from typing import Final
+from typing import Final, NamedTuple
 
 import math
 import numbers
 
 from msg_defs.status import Status
 from motion_ctrl.core import soft_limits as limits
+from motion_ctrl.core.config import AxisConfig
 from motion_ctrl.core.dual_loop import SampledCorrection
 from motion_ctrl.core.gather import Gather, base_motion
 from motion_ctrl.core.profile import Profile
@@ -69,6 +68,22 @@ _STOP_LEVEL: Final = {'stop': 1, 'estop': 2}
 
 def _number(x) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+class CommandResult(NamedTuple):
+    """A command's answer: accepted, or refused with the reason (the axis's name first, then
+    why, as the service replies and logs quote it). A tuple: `ok, reason = axis.jog(v)`."""
+    accepted: bool
+    reason: str
+
+
+#: The answer of an accepted command that has nothing to add.
+ACCEPTED: Final = CommandResult(True, '')
+
+
+def refused(reason: str) -> CommandResult:
+    """A refusal: the command changed nothing (but LIMIT where the soft limits say so)."""
+    return CommandResult(False, reason)
 
 
 class AxisCommands:
@@ -96,15 +111,7 @@ class AxisCommands:
     _sticky: int
     _stopping: int
     _guard: int
-    _motor_side: bool
-    _sampled_fb: bool
-    _soft_lo: float
-    _soft_hi: float
-    _max_vel: float
-    _max_acc: float
-    _max_jerk: float
-    _stop_dec: float
-    _estop_dec: float
+    config: AxisConfig
 
     # ... and what it provides them
     @property
@@ -134,11 +141,11 @@ class AxisCommands:
             return f'{self.name}: not enabled'
         return None
 
-    def _refuse_limit(self, reason):
+    def _refuse_limit(self, reason) -> CommandResult:
         """A soft-limit refusal: LIMIT is raised (and shown at once), nothing else changes."""
         self._sticky |= _LIMIT
         self._recompose()
-        return False, f'{self.name}: {reason}'
+        return refused(f'{self.name}: {reason}')
 
     @property
     def stopping(self) -> int:
@@ -167,7 +174,7 @@ class AxisCommands:
         if self.gather is not None:
             self.gather.end(why)
 
-    def excite(self, excitation, budget: float, base_velocity: float = 0.0):
+    def excite(self, excitation, budget: float, base_velocity: float = 0.0) -> CommandResult:
         """Add `excitation` (motion_ctrl.core.excitation, one value per servo tick) to the servo
         output from the next tick on, recording every tick (motion_ctrl.core.gather, PMAC's
         gather; Kollmorgen WorkBench's Bode measurement). Only enabled, at rest and with no run
@@ -180,34 +187,36 @@ class AxisCommands:
         distance in hand."""
         reason = self.start_refusal('excitation')
         if reason:
-            return False, reason
+            return refused(reason)
         g = self.gather
         if g is not None and g.running:
-            return False, f'{self.name}: excitation refused: a run is in progress'
+            return refused(f'{self.name}: excitation refused: a run is in progress')
         if self.profile.moving or not self.status & _DONE:
-            return False, f'{self.name}: excitation refused: the axis moves (wait for MOTION_DONE)'
+            return refused(f'{self.name}: excitation refused: the axis moves (wait for '
+                           'MOTION_DONE)')
         if not (_number(budget) and math.isfinite(budget) and budget > 0.0):
-            return False, f'{self.name}: excitation travel budget {budget!r} m must be > 0'
+            return refused(f'{self.name}: excitation travel budget {budget!r} m must be > 0')
         rate = 1.0 / self.servo_period
         if abs(excitation.sample_rate - rate) > 1e-9 * rate:
-            return False, (f'{self.name}: excitation at {excitation.sample_rate:g} Hz, the servo '
+            return refused(f'{self.name}: excitation at {excitation.sample_rate:g} Hz, the servo '
                            f'loop runs at {rate:g} Hz')
         if not (_number(base_velocity) and math.isfinite(base_velocity)):
-            return False, f'{self.name}: base velocity {base_velocity!r} is not a finite number'
+            return refused(f'{self.name}: base velocity {base_velocity!r} is not a finite number')
         v = float(base_velocity)
+        c = self.config
         reserve, refusal = base_motion(
             v, excitation.duration + self.r['settling_time'], budget, self.command_position,
-            (self._soft_lo, self._soft_hi), self._max_vel, self._max_acc, self._max_jerk,
+            (c.soft_limit_min, c.soft_limit_max), c.max_velocity, c.max_acceleration, c.max_jerk,
             self.servo_period)
         if refusal:
-            return False, f'{self.name}: excitation refused: {refusal}'
+            return refused(f'{self.name}: excitation refused: {refusal}')
         if v:
             ok, reason = self.jog(v)
             if not ok:
-                return False, reason
+                return refused(reason)
         self.gather = Gather(excitation, budget, self.load_pos, self.r['output_limit'], v,
                              reserve)
-        return True, ''
+        return ACCEPTED
 
     def live_change_refusal(self, changes: dict):
         """Why register `changes` cannot apply to the move in progress, or None: a feedback
@@ -220,9 +229,10 @@ class AxisCommands:
         if fb != self.r['feedback']:
             return (f'{self.name}.feedback: {fb} refused while the axis moves (a feedback change '
                     're-homes the command); stop first or wait for MOTION_DONE')
-        lo = changes['soft_limit_min'] if 'soft_limit_min' in changes else self._soft_lo
-        hi = changes['soft_limit_max'] if 'soft_limit_max' in changes else self._soft_hi
-        if (lo, hi) == (self._soft_lo, self._soft_hi):
+        c = self.config
+        lo = changes['soft_limit_min'] if 'soft_limit_min' in changes else c.soft_limit_min
+        hi = changes['soft_limit_max'] if 'soft_limit_max' in changes else c.soft_limit_max
+        if (lo, hi) == (c.soft_limit_min, c.soft_limit_max):
             return None
         a, b = self.profile.raw_extrema()
         off = self.sampled_offset
@@ -235,22 +245,22 @@ class AxisCommands:
                     f'move reaches {a:g} m; stop first or wait for MOTION_DONE')
         return None
 
-    def move_to(self, target):        # (any input: refused with a reason unless a number)
+    def move_to(self, target) -> CommandResult:   # (any input: refused unless a number)
         if not _number(target) or not math.isfinite(target):
-            return False, f'{self.name}: target {target!r} is not a finite number'
-        lo, hi = self._soft_lo, self._soft_hi
+            return refused(f'{self.name}: target {target!r} is not a finite number')
+        lo, hi = self.config.soft_limit_min, self.config.soft_limit_max
         if not lo <= target <= hi:
             return self._refuse_limit(f'target {target:g} m outside the soft limits '
                                       f'[{lo:g}, {hi:g}]')
         reason = self._refuse_unless_ready() or self._refuse_below_stop('target')
         if reason:
-            return False, reason
+            return refused(reason)
         try:
             self._start_move(float(target))
         except ValueError as e:      # ruckig could not plan it; the previous move goes on
-            return False, f'{self.name}: {e}'
+            return refused(f'{self.name}: {e}')
         self._sticky &= ~_LIMIT
-        return True, ''
+        return ACCEPTED
 
     def _start_move(self, target: float, max_velocity=None, max_acceleration=None) -> None:
         """Plan the profile to `target` (user frame) and start its settling (and the sampled
@@ -271,23 +281,24 @@ class AxisCommands:
         p = self.profile
         return p.raw_position - self.sampled_offset, p.raw_velocity, p.raw_acceleration
 
-    def follow(self, path):
+    def follow(self, path) -> CommandResult:
         """Follow this axis's share of a multi-axis trajectory (PMAC PVT; `Profile.follow`),
         in the user frame. The trajectory was checked as a whole (motion_ctrl.core.trajectory); the
         soft limits are checked here again, as for any target. Settling, corrections, stops and
         faults treat it as a move to its last point."""
         reason = self.start_refusal('trajectory')
         if reason:
-            return False, reason
+            return refused(reason)
         lo, hi = path.extrema
-        if lo < self._soft_lo - limits.EPS or hi > self._soft_hi + limits.EPS:
+        c = self.config
+        if lo < c.soft_limit_min - limits.EPS or hi > c.soft_limit_max + limits.EPS:
             return self._refuse_limit(f'trajectory reaches [{lo:g}, {hi:g}] m, outside the soft '
-                                      f'limits [{self._soft_lo:g}, {self._soft_hi:g}]')
+                                      f'limits [{c.soft_limit_min:g}, {c.soft_limit_max:g}]')
         off = self.sampled_offset
         try:
             self.profile.follow(path, off)
         except ValueError as e:
-            return False, f'{self.name}: {e}'
+            return refused(f'{self.name}: {e}')
         self.target = float(path.end)
         self._guard = 0
         if self.gather is not None:
@@ -295,31 +306,31 @@ class AxisCommands:
         self.settling.start_position_move(self.target + off)
         self._start_corrections()
         self._sticky &= ~_LIMIT
-        return True, ''
+        return ACCEPTED
 
-    def jog(self, velocity):          # (any input, as move_to)
+    def jog(self, velocity) -> CommandResult:     # (any input, as move_to)
         if not _number(velocity) or not math.isfinite(velocity):
-            return False, f'{self.name}: velocity {velocity!r} is not a finite number'
+            return refused(f'{self.name}: velocity {velocity!r} is not a finite number')
         reason = self._refuse_unless_ready() or self._refuse_below_stop('jog')
         if reason:
-            return False, reason
+            return refused(reason)
         velocity = float(velocity)
-        if abs(velocity) > self._max_vel:
+        if abs(velocity) > self.config.max_velocity:
             # Galil refuses an out-of-range SP; a silent clamp (PMAC Ixx16) hid the mistake.
-            return False, (f'{self.name}: jog at {velocity:g} m/s refused: above max_velocity '
-                           f'{self._max_vel:g} m/s')
+            return refused(f'{self.name}: jog at {velocity:g} m/s refused: above max_velocity '
+                           f'{self.config.max_velocity:g} m/s')
         p = self.profile
         off = self.sampled_offset
-        if velocity > 0.0 and p.raw_position >= self._soft_hi + off:
+        if velocity > 0.0 and p.raw_position >= self.config.soft_limit_max + off:
             return self._refuse_limit(f'jog at {velocity:g} m/s refused: the command is at the '
-                                      f'soft limit {self._soft_hi:g} m')
-        if velocity < 0.0 and p.raw_position <= self._soft_lo + off:
+                                      f'soft limit {self.config.soft_limit_max:g} m')
+        if velocity < 0.0 and p.raw_position <= self.config.soft_limit_min + off:
             return self._refuse_limit(f'jog at {velocity:g} m/s refused: the command is at the '
-                                      f'soft limit {self._soft_lo:g} m')
+                                      f'soft limit {self.config.soft_limit_min:g} m')
         try:
             p.jog(velocity)
         except ValueError as e:
-            return False, f'{self.name}: {e}'
+            return refused(f'{self.name}: {e}')
         self.target = None
         self.sampled.cancel()
         # Settle against the velocity the profile runs.
@@ -328,24 +339,24 @@ class AxisCommands:
         if self.gather is not None:
             self.gather.end('a jog')
         self._guard = (velocity > 0.0) - (velocity < 0.0)
-        if not self._brake_within_limits(self._max_acc, stop_kind=None) and self._guard:
+        if not self._brake_within_limits(self.config.max_acceleration, None) and self._guard:
             self._guard_tick(self.servo_period)
-        return True, ''
+        return ACCEPTED
 
-    def stop(self, kind: str = 'stop'):
+    def stop(self, kind: str = 'stop') -> CommandResult:
         if kind not in ('stop', 'estop'):
-            return False, f"{self.name}: stop kind must be 'stop' or 'estop', got {kind!r}"
+            return refused(f"{self.name}: stop kind must be 'stop' or 'estop', got {kind!r}")
         reason = self._refuse_unless_ready()
         if reason:
-            return False, reason
+            return refused(reason)
         level = _STOP_LEVEL[kind]
         if self.stopping > level:
-            return False, f'{self.name}: an ESTOP is in progress; a STOP does not lower it'
-        decel = self._stop_dec if kind == 'stop' else self._estop_dec
+            return refused(f'{self.name}: an ESTOP is in progress; a STOP does not lower it')
+        decel = self.config.stop_deceleration if kind == 'stop' else self.config.estop_deceleration
         try:
             self.profile.stop(decel)
         except ValueError as e:
-            return False, f'{self.name}: {e}'
+            return refused(f'{self.name}: {e}')
         self.sampled.cancel()
         self.target = None           # abandoned: a later `correct` holds where it stopped
         self._guard = 0
@@ -353,36 +364,36 @@ class AxisCommands:
         self._brake_within_limits(decel, stop_kind=kind)
         self._stopping = level
         self._cancel(kind.upper())
-        return True, ''
+        return ACCEPTED
 
-    def abort(self):
+    def abort(self) -> CommandResult:
         """Open the loop at once, output 0 (RMP ABORT)."""
         self._open_loop()
         self._cancel('ABORT')
         self.settling.abort()
         self._recompose()
-        return True, ''
+        return ACCEPTED
 
-    def enable(self, on: bool):
+    def enable(self, on: bool) -> CommandResult:
         if not on:
             self._open_loop()
             self._cancel('disable')
             self.settling.idle()
             self._recompose()
-            return True, ''
+            return ACCEPTED
         if self._faults:
-            return False, f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset first'
+            return refused(f'{self.name}: faulted ({self.faults!r}), call {self.name}/reset first')
         if self.drive_fault_reason:
-            return False, (f'{self.name}: amplifier fault ({self.drive_fault_reason}), call '
+            return refused(f'{self.name}: amplifier fault ({self.drive_fault_reason}), call '
                            f'{self.name}/reset first')
         if not self.homed:
-            return False, f'{self.name}: no encoder feedback yet'
+            return refused(f'{self.name}: no encoder feedback yet')
         if not self.enabled:
             self.enabled = True
             self._rehome_command()
-        return True, ''
+        return ACCEPTED
 
-    def reset(self):
+    def reset(self) -> CommandResult:
         """Clear faults (fatal following error, feedback fault, overspeed, amplifier fault) and
         LIMIT; on an open loop also ABORTED / STOPPED / ESTOPPED. The loop stays open (enable
         closes it); a closed loop and its motion are not touched. A fault whose cause persists
@@ -393,32 +404,31 @@ class AxisCommands:
         if not self.enabled:
             self.settling.idle()
         self._recompose()
-        return True, ''
+        return ACCEPTED
 
-    def correct(self):
+    def correct(self) -> CommandResult:
         """Run the sampled dual-loop correction now (Galil #CORRECT): with feedback sampled, or
         once on demand with feedback motor. A loop closed on the load encoder (load, dual) has
         nothing to correct: refused."""
         reason = self._refuse_unless_ready()
         if reason:
-            return False, reason
-        if not self._motor_side:
-            return False, (f'{self.name}: feedback {self.r["feedback"]} closes the position '
+            return refused(reason)
+        if not self.config.motor_side:
+            return refused(f'{self.name}: feedback {self.r["feedback"]} closes the position '
                            'loop on the load encoder: nothing to correct')
         if self.profile.moving:          # incl. a jog cruising at constant velocity
-            return False, f'{self.name}: a move is in progress'
+            return refused(f'{self.name}: a move is in progress')
         if self.target is None:
             self.target = self.command_position
         self.sampled.start_now()
         self.settling.start_position_move(self.target + self.sampled_offset)
-        return True, ''
-
+        return ACCEPTED
 
     # -- soft limits for jogs and stops (planned by core.soft_limits) -------------------------
     def _limits(self) -> tuple[float, float]:
         """The soft limits in the profile's (loop) frame."""
         off = self.sampled_offset
-        return self._soft_lo + off, self._soft_hi + off
+        return self.config.soft_limit_min + off, self.config.soft_limit_max + off
 
     def _brake_within_limits(self, decel: float, stop_kind) -> bool:
         """After a jog / stop plan: if the planned velocity change carries the command past a
@@ -431,23 +441,25 @@ class AxisCommands:
 
     def _guard_tick(self, dt: float) -> None:
         """A jog toward a soft limit: a stop at the limit once braking must start."""
-        limit = limits.due(self.profile, self._guard, *self._limits(), dt, self._max_acc,
-                           self._max_jerk)
+        c = self.config
+        limit = limits.due(self.profile, self._guard, *self._limits(), dt, c.max_acceleration,
+                           c.max_jerk)
         if limit is not None:
-            self._stop_at_limit(limit, self._max_acc, None)
+            self._stop_at_limit(limit, self.config.max_acceleration, None)
 
     def _stop_at_limit(self, limit: float, decel: float, stop_kind) -> None:
         """Brake onto the soft limit `limit` (loop frame). A jog becomes a position move to it
         (its settling events); a STOP / ESTOP keeps its own (STOPPED / ESTOPPED at rest).
         LIMIT is raised."""
-        planned = limits.stop_at(self.profile, limit, decel, self._estop_dec, self._max_vel,
+        c = self.config
+        planned = limits.stop_at(self.profile, limit, decel, c.estop_deceleration, c.max_velocity,
                                  *self._limits())
         self._guard = 0
         self._sticky |= _LIMIT
         if self.gather is not None:
             self.gather.end(f'the soft limit {limit - self.sampled_offset:g} m')
         if not planned:              # ruckig refused every plan: brake as hard as allowed
-            self.profile.stop(max(decel, self._estop_dec))
+            self.profile.stop(max(decel, self.config.estop_deceleration))
             self.settling.start_stop(stop_kind or 'estop')
             self.target = None
             return
@@ -459,7 +471,7 @@ class AxisCommands:
     def _start_corrections(self) -> None:
         """A position move began: with feedback sampled, corrections follow its end; otherwise
         a correction left from <axis>/correct is over."""
-        if self._sampled_fb:
+        if self.config.sampled:
             self.sampled.start()
         else:
             self.sampled.cancel()

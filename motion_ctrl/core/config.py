@@ -9,7 +9,7 @@ native floats.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import TypeVar
+from typing import Final, TypeVar
 
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults, refusals
 
@@ -141,6 +141,61 @@ class BacklashConfig(Config):
     backlash_table_spacing: float
     leadscrew_table: tuple
     leadscrew_table_spacing: float
+
+
+#: overspeed_velocity 0: the trip is this many times max_velocity.
+OVERSPEED_RATIO: Final = 1.5
+
+
+@dataclass(frozen=True, slots=True)
+class AxisConfig(Config):
+    """The axis's own registers, read by its servo tick and its commands (core.axis,
+    core.commands): the encoders and the feedback the loop closes on (Galil DV, PMAC Ixx03 /
+    Ixx04), the following-error limits (PMAC Ixx11 / Ixx12), the soft limits, the limits a
+    command is checked and braked with (Galil SP / AC, RMP stop and e-stop decelerations), the
+    overspeed trip (a drive's VOSPD), the at-rest windows' centre and the hunting watch. The
+    profile, settling, compensation, correction and law read theirs (the configurations
+    above)."""
+    feedback: str
+    motor_counts_per_m: float
+    load_counts_per_m: float
+    window_centre: str
+    following_error_fatal: float
+    following_error_warning: float
+    soft_limit_min: float
+    soft_limit_max: float
+    max_velocity: float
+    max_acceleration: float
+    max_jerk: float
+    stop_deceleration: float
+    estop_deceleration: float
+    overspeed_velocity: float
+    hunting_reversals: int
+    # the position loop on the motor encoder (feedback motor, sampled): compensation there
+    motor_side: bool = field(metadata=DERIVED)
+    velocity_on_load: bool = field(metadata=DERIVED)      # feedback load: kd on the slide
+    sampled: bool = field(metadata=DERIVED)               # Galil's sampled dual loop
+    loop_counts_per_m: float = field(metadata=DERIVED)    # of the position loop's encoder
+    # RMC: anti-hunting below half a raw count. Inclusive (by a hair): a target halfway between
+    # two counts can be held from either, so the integrator must stop there too.
+    half_count: float = field(metadata=DERIVED)
+    # window_centre count_middle: the at-rest windows judge the position as the middle of the
+    # count the encoder reads (a quadrature counter reads its lower edge).
+    window_shift: float = field(metadata=DERIVED)
+    overspeed: float = field(metadata=DERIVED)            # the trip, m/s (0: the ratio's)
+
+    @staticmethod
+    def derive(values: dict) -> dict:
+        from motion_ctrl.core.dual_loop import feedback_encoders    # (it imports this module)
+        feedback = values['feedback']
+        motor_side = feedback_encoders(feedback)[0] == 'motor'
+        cpm = values['motor_counts_per_m' if motor_side else 'load_counts_per_m']
+        return {'motor_side': motor_side, 'velocity_on_load': feedback == 'load',
+                'sampled': feedback == 'sampled', 'loop_counts_per_m': cpm,
+                'half_count': 0.5 * (1 + 1e-6) / cpm,
+                'window_shift': 0.5 / cpm if values['window_centre'] == 'count_middle' else 0.0,
+                'overspeed': values['overspeed_velocity']
+                or OVERSPEED_RATIO * values['max_velocity']}
 
 
 def defaults(cls: type[_C]) -> _C:

@@ -27,6 +27,8 @@ The integrator input is off (INTEGRATOR_HELD; its output is held, never zeroed) 
    < ½ raw count) would make the integral grow: it may only wind down toward 0 (not past it).
    The flag is raised when the rule actually restricts the integration.
 Reaching integration_limit is a clamp of the integrator output, not "input off".
+These rules are named as strategies (`AntiWindupStrategy`, control_toolbox's name), and each law
+lists those it applies (`PidLaw.ANTI_WINDUP`, `IpdLaw.ANTI_WINDUP`, `ServoLaw.anti_windup`).
 
 Delta RMC I-PD, incremental form (P and D act on the measurement only, so a target step moves the
 axis through the integral alone, without a proportional kick or overshoot):
@@ -49,6 +51,9 @@ Order, as in PMAC + RMC: loop sum → notch (Ixx36..39, unity DC gain) → outpu
 ratioing) → output limit.
 """
 from __future__ import annotations
+
+from enum import Enum
+from typing import Final
 
 from motion_ctrl.core import deadband as db
 from motion_ctrl.core.notch import Biquad
@@ -75,6 +80,41 @@ def _finish(c: LawConfig, v: float, raw_error: float, target_stopped: bool) -> f
                              target_stopped, c.position_mode)
 
 
+class AntiWindupStrategy(Enum):
+    """The rules that keep an integrator from winding up while the output cannot follow,
+    named as control_toolbox's `AntiWindupStrategy` names its kinds (CONDITIONAL_INTEGRATION),
+    with the vendors' others beside it. Fixed by the law's form, not a register: PMAC's PID
+    and RMC's I-PD each come with theirs."""
+    #: PMAC Ixx69: no integration on a tick whose output, with it, would reach output_limit.
+    CONDITIONAL_INTEGRATION = 'conditional_integration'
+    #: PMAC Ixx63: the integrator's output clamped at ±integration_limit (its input stays on).
+    INTEGRATION_LIMIT = 'integration_limit'
+    #: RMC I-PD: the one state CO clamped so that CO + feedforward + deadband stays within
+    #: ±output_limit.
+    STATE_CLAMP = 'state_clamp'
+    #: RMC anti-hunting: at rest inside its window the integral may only wind down toward 0
+    #: (deadband.limit_integral_to_wind_down).
+    WIND_DOWN_ONLY = 'wind_down_only'
+
+
+def saturates_with(c: LawConfig, notch: Biquad, total: float, raw: float,
+                   stopped: bool) -> bool:
+    """CONDITIONAL_INTEGRATION's test: would the output of loop sum `total` reach output_limit
+    after the notch and deadband (the notch peeked, not stepped)?"""
+    return abs(_finish(c, notch.peek(total), raw, stopped)) >= c.output_limit
+
+
+def limit_integration(i: float, limit: float) -> float:
+    """INTEGRATION_LIMIT: the integrator's output within ±limit."""
+    return -limit if i < -limit else limit if i > limit else i
+
+
+def clamp_state(co: float, ff: float, c: LawConfig) -> float:
+    """STATE_CLAMP: CO such that CO + ff stays within ±(output_limit − output_deadband)."""
+    room = max(c.output_limit - c.output_deadband, 0.0)
+    return _clamp(co, -room - ff, room - ff)
+
+
 class PidLaw:
     """PMAC PID: out = kp·FE + I + ff − kd·AV. The integrator input is off while
     integration_mode is at_rest and the commanded velocity is non-zero (Ixx34), while this
@@ -84,34 +124,32 @@ class PidLaw:
     the raw error, the feedforward, the measurement and its rate on the velocity-loop encoder
     (kd's input: velocity in position modes, acceleration in velocity modes)."""
 
+    ANTI_WINDUP: Final = (AntiWindupStrategy.CONDITIONAL_INTEGRATION,
+                          AntiWindupStrategy.INTEGRATION_LIMIT, AntiWindupStrategy.WIND_DOWN_ONLY)
+
     @staticmethod
     def update(law: ServoLaw, dt: float, error: float, raw: float, ff: float, meas: float,
                rate: float, cmd_vel: float, stopped: bool, anti_hunting: bool) -> float:
         c = law.config
         held = c.integrate_at_rest and not -REST_VELOCITY <= cmd_vel <= REST_VELOCITY
         il = c.integration_limit
-        i_old = law.integral
-        i_old = -il if i_old < -il else il if i_old > il else i_old   # Ixx63 may have dropped
+        i_old = limit_integration(law.integral, il)     # Ixx63 may have dropped
         i_new = i_old
         if not held:
-            free = i_old + c.ki * error * dt
-            free = -il if free < -il else il if free > il else free
+            free = limit_integration(i_old + c.ki * error * dt, il)
             i_new = free
             if anti_hunting:
-                i_new = db.limit_integral_to_wind_down(i_old, free)
+                i_new = db.limit_integral_to_wind_down(i_old, free)     # WIND_DOWN_ONLY
                 held = i_new != free                  # the rule stopped some growth
         loop = c.kp * error - c.kd * rate
-        limit = c.output_limit
         notch = law.notch
-        # No integration while the output saturates (PMAC Ixx69): test this tick's output
-        # with the integration before committing it (when there is one to test).
-        if i_new != i_old:
-            if abs(_finish(c, notch.peek(loop + i_new + ff), raw, stopped)) >= limit:
-                i_new = i_old
-                held = True
+        # Tested with this tick's integration before committing it (when there is one).
+        if i_new != i_old and saturates_with(c, notch, loop + i_new + ff, raw, stopped):
+            i_new = i_old
+            held = True
         law.integral = i_new
         out = _finish(c, notch.step(loop + i_new + ff), raw, stopped)
-        law.integrator_held = held or abs(out) >= limit
+        law.integrator_held = held or abs(out) >= c.output_limit
         return out
 
 
@@ -120,6 +158,8 @@ class IpdLaw:
     state CO carries I, P and D together and is clamped so that CO + feedforward + deadband
     stays within ±output_limit (anti-windup); anti-hunting restricts only the ki·dt·e term.
     `update` takes the same terms as PidLaw.update."""
+
+    ANTI_WINDUP: Final = (AntiWindupStrategy.STATE_CLAMP, AntiWindupStrategy.WIND_DOWN_ONLY)
 
     @staticmethod
     def update(law: ServoLaw, dt: float, error: float, raw: float, ff: float, meas: float,
@@ -131,13 +171,12 @@ class IpdLaw:
         inc_i = c.ki * dt * error
         held = False
         if anti_hunting:
-            wound = db.limit_integral_to_wind_down(co_old, co_old + inc_i)
+            wound = db.limit_integral_to_wind_down(co_old, co_old + inc_i)  # WIND_DOWN_ONLY
             held = wound != co_old + inc_i
             inc_i = wound - co_old                    # may only wind down
         co = co_old + inc_i - c.kp * (meas - prev) - c.kd * (rate - prev_rate)
         law.prev_act, law.prev_act_vel = meas, rate
-        room = max(c.output_limit - c.output_deadband, 0.0)
-        co_clamped = _clamp(co, -room - ff, room - ff)
+        co_clamped = clamp_state(co, ff, c)
         law.co = law.integral = co_clamped
         law.integrator_held = held or co_clamped != co
         return _finish(c, law.notch.step(law.co + ff), raw, stopped)
@@ -168,6 +207,11 @@ class ServoLaw:
         if config.mode != self.config.mode:
             self.reset()
         self.config = config
+
+    @property
+    def anti_windup(self) -> tuple[AntiWindupStrategy, ...]:
+        """The anti-windup strategies of the law `config.mode` names."""
+        return PidLaw.ANTI_WINDUP if self.config.pid else IpdLaw.ANTI_WINDUP
 
     def reset(self) -> None:
         """Open loop / new mode: clear the integrators and filter history."""

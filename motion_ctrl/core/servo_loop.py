@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 from motion_ctrl.core import excitation
 from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.commands import CommandResult
 from motion_ctrl.core.diagnostics import LoopStats
 from motion_ctrl.core.coordination import CoordinateSystem
 from motion_ctrl.core.hardware import LINK, AxisIO, HardwareInterface, NoHardware
@@ -190,17 +191,17 @@ class ServoLoop:
         """Start jogs now, after any register set accepted before them (as `move`)."""
         return self._start(Axis.jog, velocities)
 
-    def excite(self, axis: str):
+    def excite(self, axis: str) -> CommandResult:
         """Start the test signal `axis`'s excitation_* registers describe (Axis.excite), after
         any register set accepted before (a client sets the registers, then calls
-        <axis>/excite). Returns (accepted, reason); a refusal changes nothing."""
+        <axis>/excite). A refusal changes nothing."""
         if self.staged:
             self.apply_staged()
         r = self.values[axis]
         try:
             signal = excitation.from_registers(r, 1.0 / self.period)
         except ValueError as e:
-            return False, f'{axis}.{e}'
+            return CommandResult(False, f'{axis}.{e}')
         return self.axes[axis].excite(signal, r['excitation_budget'], r['excitation_velocity'])
 
     def _start(self, command, values: dict) -> list[tuple[str, str]]:
