@@ -1,4 +1,4 @@
-"""The bag of a killed recorder (issue 11), without ROS: `bag_repair.flush` puts everything
+"""The bag of a killed recorder (issue 11), without ROS: `bags.repair.flush` puts everything
 written so far into the file, and `record --repair` makes a complete bag, readable by `rosbags`
 and the `mcap` package, of an MCAP file cut off anywhere.
 
@@ -16,7 +16,9 @@ import sys
 import numpy as np
 import pytest
 
-from motion_ctrl.tools import bag_repair, report
+from motion_ctrl.bags import reader
+from motion_ctrl.bags import repair as bag_repair
+from motion_ctrl.tools import report
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 JS = 'sensor_msgs/msg/JointState'
@@ -29,12 +31,12 @@ def _typestore():
 
 
 def write_bag(path, n=1200, flush_every=100, close=False):
-    """A recorder's bag as record.Recorder writes it: joint_states at 1 kHz (log time = stamp),
+    """A recorder's bag as bags.writer.Recorder writes it: joint_states at 1 kHz (log time = stamp),
     x/status (transient local) every 50th tick, a flush every `flush_every` messages (the
     recorder's FLUSH_PERIOD). Returns ([(topic, log_time, raw)], writer or None)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     import msg_defs as md
-    from motion_ctrl.tools.record import _rosbags_qos
+    from motion_ctrl.bags.writer import _rosbags_qos
     ts = _typestore()
     JointState, Header, Time = (ts.types[t] for t in (
         JS, 'std_msgs/msg/Header', 'builtin_interfaces/msg/Time'))
@@ -240,5 +242,5 @@ def test_record_repair_cli(killed, tmp_path):
     want = _expected(killed, len(killed['data']) - 700)
     assert read_all(bag)[0] == want
     # report gets past the bag (it lacks reference_states, which this synthetic bag never had).
-    with pytest.raises(report.ReportError, match='reference_states'):
-        report.load_bag(bag)
+    with pytest.raises(reader.ReportError, match='reference_states'):
+        reader.load_bag(bag)

@@ -3,9 +3,9 @@ where every ROS package refuses to import, the core modules import and the harne
 1-inch move. Fails if a core module (or what it imports) pulls in rclpy or a message package.
 The core tests (conftest.CORE_FILES, `scripts/test -m core`) import there too.
 
-Every module of the package lives in a layer (core, sim, analysis: ROS-free; ros, tools: the
-shell); every module of the ROS-free layers is imported by the check, so a new one cannot slip
-past it."""
+Every module of the package lives in a layer (core, sim, analysis, canopen, plotting: ROS-free;
+ros, bags, procedures, tools: the shell); every module of the ROS-free layers is imported by the
+check, so a new one cannot slip past it."""
 import os
 import subprocess
 import sys
@@ -15,11 +15,12 @@ import pytest
 
 from conftest import CORE_FILES, REPO_ROOT, ROS_PACKAGES, core_only
 
-# The layout is the architecture: these subpackages are plain Python (numpy, scipy, ruckig) and
-# must import without ROS: the servo core, the simulated machine and the measurement maths. The
-# ROS shell (ros/) and the programs (tools/) may import ROS.
-ROS_FREE = ['core', 'sim', 'analysis', 'canopen']
-SHELL = ['ros', 'tools']
+# The layout is the architecture: these subpackages are plain Python (numpy, scipy, ruckig,
+# matplotlib, canopen) and must import without ROS: the servo core, the simulated machine, the
+# measurement maths, the fieldbus and the figures. The ROS shell (ros/), the recordings (bags/),
+# what the tools do over ROS (procedures/) and the programs (tools/) may import ROS.
+ROS_FREE = ['core', 'sim', 'analysis', 'canopen', 'plotting']
+SHELL = ['ros', 'bags', 'procedures', 'tools']
 PACKAGE = os.path.join(REPO_ROOT, 'motion_ctrl')
 
 

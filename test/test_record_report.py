@@ -30,6 +30,9 @@ import pytest
 
 from kit import running_slide, spin_for
 from msg_defs.status import Status
+from motion_ctrl.analysis.moves import format_summary, summarize_moves
+from motion_ctrl.bags.reader import ReportError, parse_joint_state
+from motion_ctrl.bags.report import make_report
 from motion_ctrl.tools import report
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
@@ -363,8 +366,8 @@ def test_recording_at_servo_rate_is_complete(recording):
 # -- 4. the PNG of a real recording ---------------------------------------------------------------
 def test_report_png_of_a_recording(recording, tmp_path):
     png = tmp_path / 'move.png'
-    summary = report.make_report(recording['bag'], png)
-    print('\n' + report.format_summary(summary) + f'\nPNG: {png}')
+    summary = make_report(recording['bag'], png)
+    print('\n' + format_summary(summary) + f'\nPNG: {png}')
     assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and png.stat().st_size > 50_000
     assert summary['x'], 'no move found in the recording'
     # Every move the report found is one of those commanded. Not those of the first half
@@ -373,7 +376,7 @@ def test_report_png_of_a_recording(recording, tmp_path):
     # spread over several ticks, which the report cannot tell from live changes). Nor a
     # faulted move: it ends where the loop opened.
     later = [m for m in summary['x'] if m.start > 0.5 and not m.faults]
-    assert later, report.format_summary(summary)
+    assert later, format_summary(summary)
     for m in later:
         assert any(m.target == pytest.approx(t, abs=1e-9) for t, _ in recording['moves']), m
     for m in summary['x']:
@@ -404,7 +407,7 @@ def test_sigterm_leaves_a_readable_bag(slide, tmp_path):
 
 def test_recorder_api_in_process(slide, tmp_path):
     """The library API the demo uses: Recorder in the caller's rclpy context."""
-    from motion_ctrl.tools.record import Recorder
+    from motion_ctrl.bags.writer import Recorder
     bag = tmp_path / 'api'
     with Recorder(bag) as rec:
         assert rec.wait_ready(10.0)
@@ -477,8 +480,8 @@ def test_sigkill_then_repair_keeps_all_but_the_last_second(own_slide, tmp_path):
 
     # What the kill left: unreadable, and report says what to do.
     assert mcap_file.is_file() and not (bag / 'metadata.yaml').exists()
-    with pytest.raises(report.ReportError, match='record --repair'):
-        report.make_report(bag)
+    with pytest.raises(ReportError, match='record --repair'):
+        make_report(bag)
 
     # The file grew every half second (from its first chunk to the kill): the recorder's
     # flush. (rosbags alone: once per MiB, ~1.5 s at the slide's full rate.) What a starved
@@ -524,7 +527,7 @@ def test_sigkill_then_repair_keeps_all_but_the_last_second(own_slide, tmp_path):
     assert len(status['/x/status']) >= 1
 
     # report reads the repaired bag.
-    assert 'x' in report.make_report(bag)
+    assert 'x' in make_report(bag)
 
     total = sum(counts.values())
     detail = (f'SIGKILL after {(kill_ns - js[0]) * 1e-9:.2f} s of recording: each servo stream '
@@ -622,12 +625,12 @@ def test_report_agrees_with_harness(registers, tmp_path, capsys):
     tr = h.trace
     bag = tmp_path / 'harness'
     write_harness_bag(tr, bag)
-    summary = report.make_report(bag, tmp_path / 'harness.png')
+    summary = make_report(bag, tmp_path / 'harness.png')
     moves = summary['x']
     assert len(moves) == 2
     # The same function on the harness' own arrays (no bag in between) gives the same numbers.
-    direct = report.summarize_moves(tr.t, tr.command, tr.load, tr.status, measured=tr.actual,
-                                    output=tr.output)
+    direct = summarize_moves(tr.t, tr.command, tr.load, tr.status, measured=tr.actual,
+                             output=tr.output)
     t0 = tr.t[0]                       # the report's time axis starts at the first stamp
     t = np.array(tr.t) - t0
     for m, d, f in zip(moves, direct, figures):
@@ -679,11 +682,11 @@ def test_parse_joint_state_matches_the_typestore():
                          position=np.array(pos, float), velocity=np.array(vel, float),
                          effort=np.array(eff, float))
         raw = ts.serialize_cdr(msg, 'sensor_msgs/msg/JointState')
-        assert report.parse_joint_state(raw) == (
+        assert parse_joint_state(raw) == (
             1795309000123456789, names, tuple(pos), tuple(vel), tuple(eff))
         with pytest.raises(ValueError):
-            report.parse_joint_state(ts.serialize_cdr(msg, 'sensor_msgs/msg/JointState',
-                                                      little_endian=False))
+            parse_joint_state(ts.serialize_cdr(msg, 'sensor_msgs/msg/JointState',
+                                               little_endian=False))
 
 
 # -- 5. one-line errors, exit code 2 ---------------------------------------------------------------

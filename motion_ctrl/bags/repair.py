@@ -41,6 +41,10 @@ import shutil
 import struct
 from dataclasses import dataclass, field
 
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
 FLUSH_PERIOD = 0.5          # s between forced chunk closes while recording
 MAGIC = b'\x89MCAP0\r\n'
 
@@ -176,79 +180,105 @@ def read_records(buf, scan: Scan):
         raise RepairError('not an MCAP file (no MCAP magic at the start)')
     scan.size = len(buf)
     scan.end = 8
-
-    def handle(op, a, b):
-        if op == OP_SCHEMA:
-            if b - a < 2:
-                raise _Stop('short schema record')
-            (sid,) = struct.unpack_from('<H', buf, a)
-            name, p = _string(buf, a + 2, b)
-            encoding, p = _string(buf, p, b)
-            data, p = _bytes(buf, p, b)
-            try:
-                text = data.decode('utf-8')
-            except UnicodeDecodeError:
-                raise _Stop('a schema that is not UTF-8') from None
-            scan.schemas.setdefault(sid, (name, encoding, text))
-            return [('schema', sid)]
-        if op == OP_CHANNEL:
-            if b - a < 4:
-                raise _Stop('short channel record')
-            cid, sid = struct.unpack_from('<HH', buf, a)
-            topic, p = _string(buf, a + 4, b)
-            encoding, p = _string(buf, p, b)
-            meta_raw, p = _bytes(buf, p, b)
-            meta, q = {}, 0
-            while q < len(meta_raw):
-                k, q = _string(meta_raw, q, len(meta_raw))
-                v, q = _string(meta_raw, q, len(meta_raw))
-                meta[k] = v
-            if cid in scan.channels:
-                return []
-            scan.channels[cid] = (sid, topic, encoding, meta)
-            return [('channel', cid)]
-        if op == OP_MESSAGE:
-            if b - a < 22:
-                raise _Stop('short message record')
-            cid, _seq, log_time = struct.unpack_from('<HIQ', buf, a)
-            if cid not in scan.channels:
-                scan.orphans += 1
-                return []
-            return [('message', cid, log_time, bytes(buf[a + 22:b]))]
-        return []
-
     try:
         for op, a, b in _records(buf, 8, len(buf), scan, top=True):
             if op == OP_HEADER:
-                try:
-                    profile, _ = _string(buf, a, b)
-                except _Stop:
-                    profile = ''
-                if profile != 'ros2':
-                    raise RepairError(f'MCAP profile {profile!r}, not a ros2 bag')
+                _check_profile(buf, a, b)
             elif op in (OP_DATA_END, OP_FOOTER):
                 scan.complete = True
                 return
             elif op == OP_CHUNK or op == 'partial':
-                partial = op == 'partial'
-                lo, hi = _chunk_records(buf, a, b, partial)
-                inner = Scan()          # only for its stopped / unused bookkeeping
-                for iop, ia, ib in _records(buf, lo, hi, inner, top=False):
-                    for item in handle(iop, ia, ib):
-                        if partial and item[0] == 'message':
-                            scan.partial_chunk += 1
-                        yield item
-                if inner.stopped and not partial:
-                    raise _Stop(f'inside the chunk at byte {a - 9}: {inner.stopped}')
+                yield from _chunk_items(buf, a, b, op == 'partial', scan)
             else:
-                yield from handle(op, a, b)
+                yield from _items(buf, op, a, b, scan)
     except _Stop as e:
         scan.stopped = str(e)
+
+
+def _check_profile(buf, a: int, b: int) -> None:
+    """The Header record's profile must be 'ros2' (a rosbag2 MCAP file)."""
+    try:
+        profile, _ = _string(buf, a, b)
+    except _Stop:
+        profile = ''
+    if profile != 'ros2':
+        raise RepairError(f'MCAP profile {profile!r}, not a ros2 bag')
+
+
+def _chunk_items(buf, a: int, b: int, partial: bool, scan: Scan):
+    """The items of the records inside a Chunk record's body buf[a:b] (`partial`: a chunk that
+    was cut off, whose complete records are kept and counted in scan.partial_chunk)."""
+    lo, hi = _chunk_records(buf, a, b, partial)
+    inner = Scan()          # only for its stopped / unused bookkeeping
+    for iop, ia, ib in _records(buf, lo, hi, inner, top=False):
+        for item in _items(buf, iop, ia, ib, scan):
+            if partial and item[0] == 'message':
+                scan.partial_chunk += 1
+            yield item
+    if inner.stopped and not partial:
+        raise _Stop(f'inside the chunk at byte {a - 9}: {inner.stopped}')
+
+
+def _items(buf, op, a: int, b: int, scan: Scan) -> list:
+    """The item of one Schema, Channel or Message record with body buf[a:b] (none for other
+    records, a channel seen before, a message on an unknown channel)."""
+    if op == OP_SCHEMA:
+        return [('schema', _schema(buf, a, b, scan))]
+    if op == OP_CHANNEL:
+        cid = _channel(buf, a, b, scan)
+        return [] if cid is None else [('channel', cid)]
+    if op == OP_MESSAGE:
+        if b - a < 22:
+            raise _Stop('short message record')
+        cid, _seq, log_time = struct.unpack_from('<HIQ', buf, a)
+        if cid not in scan.channels:
+            scan.orphans += 1
+            return []
+        return [('message', cid, log_time, bytes(buf[a + 22:b]))]
+    return []
+
+
+def _schema(buf, a: int, b: int, scan: Scan) -> int:
+    """Read a Schema record (id, name, encoding, data) into scan.schemas; its id."""
+    if b - a < 2:
+        raise _Stop('short schema record')
+    (sid,) = struct.unpack_from('<H', buf, a)
+    name, p = _string(buf, a + 2, b)
+    encoding, p = _string(buf, p, b)
+    data, p = _bytes(buf, p, b)
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError:
+        raise _Stop('a schema that is not UTF-8') from None
+    scan.schemas.setdefault(sid, (name, encoding, text))
+    return sid
+
+
+def _channel(buf, a: int, b: int, scan: Scan) -> int | None:
+    """Read a Channel record (id, schema id, topic, encoding, metadata) into scan.channels; its
+    id, None when the id was seen before."""
+    if b - a < 4:
+        raise _Stop('short channel record')
+    cid, sid = struct.unpack_from('<HH', buf, a)
+    topic, p = _string(buf, a + 4, b)
+    encoding, p = _string(buf, p, b)
+    meta_raw, p = _bytes(buf, p, b)
+    meta, q = {}, 0
+    while q < len(meta_raw):
+        k, q = _string(meta_raw, q, len(meta_raw))
+        v, q = _string(meta_raw, q, len(meta_raw))
+        meta[k] = v
+    if cid in scan.channels:
+        return None
+    scan.channels[cid] = (sid, topic, encoding, meta)
+    return cid
 
 
 # -- repair ---------------------------------------------------------------------------------------
 @dataclass
 class RepairResult:
+    """What `repair` kept, and where and why the file stopped; `summary` is what
+    `record --repair` prints."""
     path: pathlib.Path
     counts: dict            # topic -> messages kept
     types: dict             # topic -> type
@@ -287,7 +317,6 @@ class RepairResult:
 
 def _rihs01(msgtype: str, msgdef: str) -> str:
     """The type hash for the metadata (the MCAP file does not hold it)."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     kilted = get_typestore(Stores.ROS2_KILTED)
     try:
         if msgtype in kilted.types and \
@@ -304,6 +333,7 @@ def _rihs01(msgtype: str, msgdef: str) -> str:
 
 
 def find_mcap(bag_dir: pathlib.Path) -> pathlib.Path:
+    """The one MCAP file of a bag directory (RepairError for none or several)."""
     if not bag_dir.is_dir():
         raise RepairError(f'{bag_dir}: no such bag directory')
     files = sorted(p for p in bag_dir.glob('*.mcap') if p.is_file())
@@ -324,9 +354,6 @@ def needs_repair(bag_dir) -> bool:
 def repair(bag_dir) -> RepairResult:
     """Make a complete rosbag2 bag (MCAP with summary + metadata.yaml) of what a killed recorder
     left in `bag_dir`. Raises RepairError (one line) when there is nothing to repair from."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.rosbag2.metadata import parse_qos
-
     bag_dir = pathlib.Path(bag_dir)
     src = find_mcap(bag_dir)
     if (bag_dir / 'metadata.yaml').exists():
@@ -338,47 +365,12 @@ def repair(bag_dir) -> RepairResult:
     writer = Writer(work / src.stem, version=Writer.VERSION_LATEST,
                     storage_plugin=StoragePlugin.MCAP)
     scan = Scan()
-    conns: dict = {}
-    counts: dict[str, int] = {}
-    types: dict = {}
-    start = end = None
     with open(src, 'rb') as f:
-        try:
-            fcntl.flock(f.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except OSError:
-            raise RepairError(f'{src}: a recorder is still writing it (file locked); stop it '
-                              f'first') from None
-        size = os.fstat(f.fileno()).st_size
-        if size == 0:
-            raise RepairError(f'{src}: empty file (the recorder wrote nothing)')
+        size = _size_unlocked(f, src)
         buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         try:
             writer.open()
-            for item in read_records(buf, scan):
-                if item[0] == 'channel':
-                    cid = item[1]
-                    sid, topic, encoding, meta = scan.channels[cid]
-                    name, _fmt, msgdef = scan.schemas.get(sid, ('', '', ''))
-                    if not name:
-                        continue          # schemaless: rosbags cannot write it
-                    try:
-                        qos = parse_qos(meta.get('offered_qos_profiles', ''))
-                    except Exception:
-                        qos = []
-                    conns[cid] = writer.add_connection(
-                        topic, name, msgdef=msgdef, rihs01=_rihs01(name, msgdef),
-                        serialization_format=encoding, offered_qos_profiles=qos)
-                    counts.setdefault(topic, 0)
-                    types[topic] = name
-                elif item[0] == 'message':
-                    _, cid, log_time, data = item
-                    conn = conns.get(cid)
-                    if conn is None:
-                        continue
-                    writer.write(conn, log_time, data)
-                    counts[conn.topic] += 1
-                    start = log_time if start is None else min(start, log_time)
-                    end = log_time if end is None else max(end, log_time)
+            copy = _copy(buf, writer, scan)
             if not scan.complete:
                 writer.set_custom_data(
                     'motion_ctrl.repaired',
@@ -395,5 +387,66 @@ def repair(bag_dir) -> RepairResult:
     os.replace(new_dir / 'metadata.yaml', bag_dir / 'metadata.yaml')
     shutil.rmtree(work)
     kept = size if scan.complete else scan.end
-    return RepairResult(bag_dir, counts, types, start, end, kept, size, scan.partial_chunk,
-                        scan.stopped, scan.complete)
+    return RepairResult(bag_dir, copy.counts, copy.types, copy.start, copy.end, kept, size,
+                        scan.partial_chunk, scan.stopped, scan.complete)
+
+
+def _size_unlocked(f, src: pathlib.Path) -> int:
+    """The size of the open MCAP file `f`; RepairError while a recorder holds its lock (`lock`)
+    or when it is empty."""
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        raise RepairError(f'{src}: a recorder is still writing it (file locked); stop it '
+                          f'first') from None
+    size = os.fstat(f.fileno()).st_size
+    if size == 0:
+        raise RepairError(f'{src}: empty file (the recorder wrote nothing)')
+    return size
+
+
+@dataclass
+class _Copy:
+    """What `_copy` wrote into the new bag."""
+    conns: dict = field(default_factory=dict)     # channel id -> rosbags connection
+    counts: dict = field(default_factory=dict)    # topic -> messages written
+    types: dict = field(default_factory=dict)     # topic -> type
+    start: int | None = None                      # first and last log time [ns]
+    end: int | None = None
+
+
+def _copy(buf, writer, scan: Scan) -> _Copy:
+    """Write every complete channel (with a schema) and message of the MCAP file in `buf`
+    through the open rosbags `writer`."""
+    copy = _Copy()
+    for item in read_records(buf, scan):
+        if item[0] == 'channel':
+            _add_connection(writer, scan, item[1], copy)
+        elif item[0] == 'message':
+            _, cid, log_time, data = item
+            conn = copy.conns.get(cid)
+            if conn is None:
+                continue
+            writer.write(conn, log_time, data)
+            copy.counts[conn.topic] += 1
+            copy.start = log_time if copy.start is None else min(copy.start, log_time)
+            copy.end = log_time if copy.end is None else max(copy.end, log_time)
+    return copy
+
+
+def _add_connection(writer, scan: Scan, cid: int, copy: _Copy) -> None:
+    """The writer's connection for channel `cid`: its topic, type, schema, type hash and the
+    offered QoS of its metadata (a schemaless channel is left out: rosbags cannot write it)."""
+    sid, topic, encoding, meta = scan.channels[cid]
+    name, _fmt, msgdef = scan.schemas.get(sid, ('', '', ''))
+    if not name:
+        return
+    try:
+        qos = parse_qos(meta.get('offered_qos_profiles', ''))
+    except Exception:
+        qos = []
+    copy.conns[cid] = writer.add_connection(
+        topic, name, msgdef=msgdef, rihs01=_rihs01(name, msgdef),
+        serialization_format=encoding, offered_qos_profiles=qos)
+    copy.counts.setdefault(topic, 0)
+    copy.types[topic] = name
