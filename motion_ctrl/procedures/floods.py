@@ -21,13 +21,27 @@ is printed as it came (its length too: a refusal quotes a size, never the value)
 """
 from __future__ import annotations
 
+import datetime
 import math
+import os
 import pathlib
 import statistics
 import tempfile
 import time
 
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
+
+import msg_defs as md
 from motion_ctrl.core.registers import LOAD_COUNTS_PER_M
+from motion_ctrl.ros import ros_env, servo_bus
+from motion_ctrl.ros.client import SlideClient
+from motion_ctrl.ros.processes import start_slide
 from msg_defs.status import Status
 
 FLOOD_RATE = 5000.0       # Hz of the target floods
@@ -46,10 +60,6 @@ class Floods:
     """The cases, on a SlideClient of a running slide (plant and controller started)."""
 
     def __init__(self, client, axis: str = 'x', print_=print, log_path=None):
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.parameter_client import AsyncParameterClient
-        from sensor_msgs.msg import JointState
-        import msg_defs as md
         self.client, self.axis, self.print = client, axis, print_
         self.log_path = log_path          # the controller's log: refusals not answered to us
         self.diag: list[tuple[float, float]] = []       # (stamp, rate_hz)
@@ -74,8 +84,6 @@ class Floods:
 
     # -- the cases ----------------------------------------------------------------------------
     def run(self) -> list[tuple]:
-        from rclpy.serialization import serialize_message
-        import msg_defs as md
         c, a = self.client, self.axis
         self.params.wait_for_services(10.0)
         start = c.load_position(a)
@@ -90,7 +98,6 @@ class Floods:
             [[start + 1e-6 * (k % 10)] for k in range(10000)]))
         self._case('trajectory 10,000 points', lambda: self._repeat(
             lambda: c.pub_trajectory.publish(traj)), log='joint_trajectory refused')
-        from rclpy.parameter import Parameter
         table = Parameter(f'{a}.leadscrew_table', Parameter.Type.DOUBLE_ARRAY,
                           [1e-6] * 100_000)
         self._case('table 100,000 entries', lambda: self._repeat(
@@ -104,7 +111,6 @@ class Floods:
             # What `ros2 param load` sends (AsyncParameterClient.load_parameter_file: the file
             # read here, then one set_parameters request), the file read once, beforehand:
             # PyYAML takes seconds for it, in this process, not the controller's.
-            from rclpy.parameter import parameter_dict_from_yaml_file
             loaded = list(parameter_dict_from_yaml_file(
                 str(path), False, target_nodes=['controller']).values())
         self._case(f'param load {size / 1000:.0f} kB', lambda: self._repeat(
@@ -170,7 +176,6 @@ class Floods:
 
 
 def _zero_stamp():
-    from builtin_interfaces.msg import Time
     return Time()
 
 
@@ -189,23 +194,29 @@ def format_row(row) -> str:
             f'{" ".join(f"{r:.0f}" for r in during)}')
 
 
+def log_dir(out, name: str) -> pathlib.Path:
+    """`out`, or out/<name>-<date>-<time> when None, made."""
+    out = pathlib.Path(out or datetime.datetime.now().strftime(f'out/{name}-%Y%m%d-%H%M%S'))
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def start_nodes(realtime_priority: int, servo_bus_setting: str, out: pathlib.Path) -> list:
+    """Plant and controller as `soak` and the floods run them: both at `realtime_priority`, on
+    the servo bus as `servo_bus_setting` says (MOTION_CTRL_SERVO_DOMAIN), their logs in `out`."""
+    os.environ[servo_bus.ENV] = servo_bus_setting
+    rt = {'realtime_priority': realtime_priority}
+    return start_slide(rt, rt, log_dir=out)
+
+
 def main(realtime_priority: int = 0, servo_bus_setting: str = 'auto', out=None) -> int:
     """Start the slide, run the cases, print the table; exit 0 when every case kept >= 98 % of
     the loop's rate and landed within a count (a measurement: run it on a quiet machine)."""
-    import datetime
-    import os
-    import rclpy
-    from motion_ctrl.ros import ros_env, servo_bus
-    from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import start_slide
     domain = ros_env.private_domain()
-    out = pathlib.Path(out or datetime.datetime.now().strftime('out/floods-%Y%m%d-%H%M%S'))
-    out.mkdir(parents=True, exist_ok=True)
+    out = log_dir(out, 'floods')
     print(f'floods: ROS_DOMAIN_ID={domain}, servo bus {servo_bus_setting}, realtime_priority '
           f'{realtime_priority}, logs in {out}', flush=True)
-    os.environ[servo_bus.ENV] = servo_bus_setting
-    rt = {'realtime_priority': realtime_priority}
-    nodes = start_slide(rt, rt, log_dir=out)
+    nodes = start_nodes(realtime_priority, servo_bus_setting, out)
     rclpy.init()
     client = SlideClient(services=True)
     try:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
@@ -67,35 +68,56 @@ class ControllerNode(ros_params.RegisterNode):
 
     def __init__(self, params_files=(), **kwargs):
         """`params_files`: those of the command line (run passes them): with `hardware: sim`
-        their `plant:` sections configure the simulated slides too."""
+        their `plant:` sections configure the simulated slides too. The setup in order:
+        parameters, the servo loop and its hardware, the parameter callbacks, the publishers,
+        the inputs (targets, services, the action), what drives the tick, then the hardware
+        activated."""
         super().__init__(self.NODE_NAME, **kwargs)
         self.globals_table, self.axis_table = CONTROLLER_GLOBAL, CONTROLLER_AXIS
         self.consistency = consistency
+        self._declare_parameters(params_files)
+        self._make_loop()
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._stage)
+        self._make_publishers()
+        self._make_inputs()
+        self._make_tick_drivers()
+        self.hardware.activate()
+        self.get_logger().info(
+            f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}, hardware '
+            f'{self.hardware_kind}' + (' (the clock: sim time)' if self.sim_clock else ''))
+
+    def _declare_parameters(self, params_files) -> None:
+        """Every register declared from the table (the globals, then each axis's), then the
+        hardware's; an override the node does not know is refused."""
         g = {r.name: ros_params.declare(self, r, r.name) for r in CONTROLLER_GLOBALS}
         self.axis_names = list(g['axes'])
         self.servo_rate = g['servo_rate']
         self.feedback_timeout = g['feedback_timeout']
         self.period = 1.0 / self.servo_rate
-        self.axes: dict[str, Axis] = {}
         self.values: dict[str, dict] = {}
         for name in self.axis_names:
             self.values[name] = {r.name: ros_params.declare(self, r, f'{name}.{r.name}')
                                  for r in AXIS_REGISTERS}
         self.hardware_kind = g['hardware']
-        hw_values = self.hardware_values = declare_hardware(self, params_files)
+        self.hardware_values = declare_hardware(self, params_files)
         self.refuse_unknown_overrides()
+
+    def _make_loop(self) -> None:
+        """The axes, the hardware interface (configured) and the ServoLoop that ticks them."""
+        self.axes: dict[str, Axis] = {}
         for name, values in self.values.items():
             self.axes[name] = Axis(name, values, self.period)   # raises on a bad set: see run()
         self.sim_time = self.get_parameter('use_sim_time').value
-        self.hardware = make_hardware(self, hw_values, READERS_REFRESH)
+        self.hardware = make_hardware(self, self.hardware_values, READERS_REFRESH)
         self.hardware.configure()          # raises HardwareError: one line, exit 2 (node_runner)
         self.loop = ServoLoop(self.axes, self.values, self.period, self.feedback_timeout,
                               self.sim_time, self.hardware)
         if self.hardware_kind == 'canopen':
             self.hardware.watch(self.axes)
-        self.add_on_set_parameters_callback(self._validate)
-        self.add_post_set_parameters_callback(self._stage)
 
+    def _make_publishers(self) -> None:
+        """The state streams, each axis's status word and /diagnostics."""
         self.pub_joint = self.stream(JointState, md.JOINT_STATES, refresh=READERS_REFRESH)
         self.pub_reference = self.stream(JointState, md.REFERENCE_STATES,
                                          refresh=READERS_REFRESH)
@@ -103,6 +125,10 @@ class ControllerNode(ros_params.RegisterNode):
         self.pub_status = {a: self.stream(UInt32, md.status_topic(a), md.STATUS_QOS)
                            for a in self.axis_names}
         self.pub_diag = self.stream(DiagnosticArray, md.DIAGNOSTICS, 10)
+
+    def _make_inputs(self) -> None:
+        """The target topics, the excitation runs, each axis's services and the
+        FollowJointTrajectory action."""
         self.inputs = TargetInputs(self, self.loop, self.sim_time)
         self.excitation = ExcitationRuns(self, self.loop)
         for a in self.axis_names:
@@ -111,15 +137,17 @@ class ControllerNode(ros_params.RegisterNode):
         self.follow = FollowJointTrajectoryServer(self, MAX_SCHEDULE, MAX_TARGET_NAMES,
                                                   MAX_TRAJECTORY_POINTS)
 
+    def _make_tick_drivers(self) -> None:
+        """The status refresh's counters, then what drives the tick and /diagnostics: a timer
+        in real time (its phase following the encoder samples with hardware topics); in sim
+        time the plant's samples (topics) or this node's own clock (sim: spin_step)."""
         # The status words: each on a change, and each again at least every STATUS_PERIOD,
         # a few axes a tick in turn (`_refresh_status`).
         self.status_turn = 0
         self.status_due = 0.0
         self.status_at: float | None = None       # the tick time the refresh last counted from
         self.stats = self.loop.stats
-        # What drives the tick: a timer in real time; in sim time the plant's samples
-        # (topics) or this node's own clock (sim: spin_step).
-        self.timer = None
+        self.timer: Any = None         # real time: the servo timer (its period moves with sync)
         self.sync = None
         self.period_ns = round(self.period * 1e9)
         self.grid_ns: int | None = None           # the servo grid's last tick (hardware sim)
@@ -141,10 +169,6 @@ class ControllerNode(ros_params.RegisterNode):
             self.own_clock = SimClock(self, self.period_ns, self._tick, self._publish_diagnostics)
         else:
             self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
-        self.hardware.activate()
-        self.get_logger().info(
-            f'servo loop at {self.servo_rate:g} Hz for axes {self.axis_names}, hardware '
-            f'{self.hardware_kind}' + (' (the clock: sim time)' if self.sim_clock else ''))
 
     # -- parameters -----------------------------------------------------------------------------
     def current(self, axis: str) -> dict:

@@ -19,6 +19,7 @@ import math
 import os
 import time
 
+import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -52,7 +53,6 @@ def node_env(env: dict | None = None) -> dict:
 
 def client_context(domain: int):
     """An initialised rclpy context on `domain`, for a client of the lockstep nodes."""
-    import rclpy
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     return context
@@ -72,6 +72,69 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
                                  (plant_params or {}) | PLANT, log_dir, env=node_env(env))
 
 
+class _Observer:
+    """The lockstep run's observer, the third process on two cores: it must not slow the loop
+    it watches. It takes plant_states raw (no Python message per sample) and decodes them after
+    the run; progress is read from the newest sample a few times a second. It publishes the
+    target and keeps the /clock it hears."""
+
+    def __init__(self, context):
+        self.context = context
+        self.node = Node('lockstep_observer', context=context)
+        self.executor = ros_env.executor(context)
+        self.executor.add_node(self.node)
+        self.pub_target = self.node.create_publisher(JointState, md.TARGET_POSITION, 10)
+        self.raw: list = []          # (wall time of arrival, serialised plant_states)
+        self.node.create_subscription(
+            JointState, md.PLANT_STATES, lambda b: self.raw.append((time.monotonic(), b)),
+            QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE),
+            raw=True)                # deep: a slow reader must not lose samples
+        self.clock: list = []
+        self.node.create_subscription(ClockMsg, md.CLOCK, lambda m: self.clock.append(m.clock),
+                                      10)
+
+    def sim_time(self) -> float:
+        """The newest plant_states sample's stamp [s], -1 before the first."""
+        if not self.raw:
+            return -1.0
+        st = deserialize_message(self.raw[-1][1], JointState).header.stamp
+        return st.sec + st.nanosec * 1e-9
+
+    def spin_until(self, predicate, seconds) -> bool:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            next_check = min(deadline, time.monotonic() + 0.05)
+            while time.monotonic() < next_check:
+                self.executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def spin_for(self, seconds) -> None:
+        self.spin_until(lambda: False, seconds)     # the time is the point: no condition to meet
+
+    def send_target(self, target: float, start: float, sim: bool) -> float:
+        """The target published, stamped with the sim time its move starts at, once the
+        controller is there: `start` (topics), or `start` s after the controller's clock as
+        first read here, at a whole second (sim). Returns that start [s of sim time]."""
+        if not self.spin_until(lambda: self.pub_target.get_subscription_count() > 0, 30.0):
+            raise RuntimeError('controller not discovered')
+        self.spin_for(0.5)                      # the controller's side of the match, too
+        if sim:
+            if not self.spin_until(lambda: self.clock, 30.0):
+                raise RuntimeError('no /clock from the controller')
+            start = math.ceil(self.clock[-1].sec + self.clock[-1].nanosec * 1e-9 + start)
+        stamp = JointState().header.stamp
+        stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
+        self.pub_target.publish(md.joint_state(stamp, ['x'], [target]))
+        self.spin_for(0.2)
+        return start
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
 def run_lockstep(target: float = 0.0254, start: float = 20.0, duration: float = 2.0,
                  timeout: float = 60.0, log_dir=None, hardware: str = 'topics'):
     """A move to `target` in the lockstep simulation. Returns ({ns from the move's start:
@@ -89,76 +152,37 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, duration: float = 
     d = params_dir()
     domain = ros_env.spare_domain()
     env = node_env(os.environ | {'ROS_DOMAIN_ID': str(domain)})
-    context = client_context(domain)
-    # The observer is the third process on two cores: it must not slow the loop it watches.
-    # It takes plant_states raw (no Python message per sample) and decodes them after the
-    # run; progress is read from the newest sample a few times a second.
-    node = Node('lockstep_observer', context=context)
-    executor = ros_env.executor(context)
-    executor.add_node(node)
-    pub_target = node.create_publisher(JointState, md.TARGET_POSITION, 10)
-    raw = []                      # (wall time of arrival, serialised plant_states)
-    node.create_subscription(JointState, md.PLANT_STATES,
-                             lambda b: raw.append((time.monotonic(), b)),
-                             QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE),
-                             raw=True)   # deep: a slow reader must not lose samples
-    clock: list = []
-    node.create_subscription(ClockMsg, md.CLOCK, lambda m: clock.append(m.clock), 10)
-
-    def sim_time() -> float:
-        if not raw:
-            return -1.0
-        st = deserialize_message(raw[-1][1], JointState).header.stamp
-        return st.sec + st.nanosec * 1e-9
-
-    def spin_until(predicate, seconds) -> bool:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            if predicate():
-                return True
-            next_check = min(deadline, time.monotonic() + 0.05)
-            while time.monotonic() < next_check:
-                executor.spin_once(timeout_sec=0.01)
-        return predicate()
-
-    def spin_for(seconds) -> None:
-        spin_until(lambda: False, seconds)     # the time is the point: no condition to meet
-
+    obs = _Observer(client_context(domain))
     plant = None
     sim = hardware == 'sim'
     controller = NodeProcess('controller_node', [d / 'controller.yaml'] + (
         [d / 'plant.yaml'] if sim else []), CONTROLLER | ({'hardware': 'sim'} if sim else {}),
         log_file(log_dir, 'controller'), env=env)
     try:
-        if not spin_until(lambda: pub_target.get_subscription_count() > 0, 30.0):
-            raise RuntimeError('controller not discovered')
-        spin_for(0.5)                      # the controller's side of the match, too
-        if sim:
-            if not spin_until(lambda: clock, 30.0):
-                raise RuntimeError('no /clock from the controller')
-            start = math.ceil(clock[-1].sec + clock[-1].nanosec * 1e-9 + start)
-        stamp = JointState().header.stamp
-        stamp.sec, stamp.nanosec = int(start), round((start % 1) * 1e9)
-        pub_target.publish(md.joint_state(stamp, ['x'], [target]))
-        spin_for(0.2)
+        start = obs.send_target(target, start, sim)
         if not sim:
             plant = NodeProcess('plant_node', d / 'plant.yaml', PLANT,
                                 log_file(log_dir, 'plant'), env=env)
-        if not spin_until(lambda: raw, 30.0):
+        if not obs.spin_until(lambda: obs.raw, 30.0):
             raise RuntimeError('plant_states not seen')
         end = start + duration
-        if not spin_until(lambda: sim_time() >= end, timeout):
+        if not obs.spin_until(lambda: obs.sim_time() >= end, timeout):
             raise RuntimeError(
-                f'lockstep did not reach {end} s of sim time: stopped at {sim_time()} s; '
+                f'lockstep did not reach {end} s of sim time: stopped at {obs.sim_time()} s; '
                 f'plant exit {None if plant is None else plant.proc.poll()}, controller exit '
                 f'{controller.proc.poll()}')
     finally:
-        executor.shutdown()
-        node.destroy_node()
+        obs.close()
         for n in (controller, plant):
             if n is not None:
                 n.stop()
-        context.try_shutdown()
+        obs.context.try_shutdown()
+    return _truth(obs.raw, start, duration)
+
+
+def _truth(raw: list, start: float, duration: float):
+    """The run's plant_states decoded: ({ns from the move's start: (x_motor, x_load, v_motor,
+    v_load)} for `duration` s from `start`, sim seconds per wall second)."""
     truth, moving = {}, []
     start_ns = round(start * 1e9)
     for wall, b in raw:

@@ -30,6 +30,7 @@ from motion_ctrl.analysis import iso230
 from motion_ctrl.core.registers import INCH
 from motion_ctrl.procedures.session import (AxisUnderTest, SessionError, axis_session, pair,
                                        session_arguments, spawned_hardware)
+from msg_defs.status import Status
 
 COMP_REGISTERS = ('backlash_distance', 'backlash_table', 'backlash_table_spacing',
                   'leadscrew_table', 'leadscrew_table_spacing')
@@ -71,16 +72,61 @@ def default_travel(soft_min: float, soft_max: float, overtravel: float) -> tuple
 def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     """The whole procedure on an axis of a ready controller; returns {'before': Iso230,
     'after': Iso230 or None, 'tables': Tables, 'seconds': {...}}."""
+    _check_ready(axis, args.axis)
+    regs, lo, hi, targets = _plan(axis, args, log)
+    cpm = regs['load_counts_per_m']
+    saved = {k: regs[k] for k in ('feedback', 'integration_mode', *COMP_REGISTERS)}
+    seconds = {}
+    t0 = time.monotonic()
+    _uncompensated_motor_loop(axis, targets[0] - args.overtravel, args.move_timeout)
+    applied = False
+    try:
+        approach = (args.approach, args.approach_time)
+        before = run_test(axis, targets, args.cycles, args.overtravel, args.dwell, args.average,
+                          args.move_timeout, _progress(log, 'before'), approach)
+        seconds['before'] = time.monotonic() - t0
+        tables, yaml_path = _write_tables(before, args, out, lo, hi, targets, cpm, log)
+        after = None
+        if args.apply:
+            axis.move(targets[0] - args.overtravel, args.move_timeout)
+            axis.load_file(yaml_path)
+            applied = True
+            t1 = time.monotonic()
+            after = run_test(axis, targets, args.cycles, args.overtravel, args.dwell,
+                             args.average, args.move_timeout, _progress(log, 'after'), approach)
+            seconds['after'] = time.monotonic() - t1
+    finally:
+        _put_back(axis, args, saved, applied, targets[0] - args.overtravel, log)
+    seconds['total'] = time.monotonic() - t0
+    runs = {'before': before} | ({'after (tables applied)': after} if after is not None else {})
+    report = iso230.format_report(runs, cpm)
+    png = out / 'calibration.png'
+    iso230.plot_report(runs, png, cpm, title=f'ISO 230-2, axis {args.axis}, feedback motor, '
+                       f'{len(targets)} targets x {args.cycles} cycles')
+    log(report)
+    log(f'calibrate: plot in {png}; ' + ', '.join(f'{k} {v:.1f} s' for k, v in seconds.items()))
+    (out / 'report.md').write_text(report + '\n')
+    return dict(before=before, after=after, tables=tables, seconds=seconds, targets=targets)
+
+
+def _check_ready(axis: AxisUnderTest, name: str) -> None:
+    """SessionError unless the axis is enabled and without a fault."""
+    # (imported here: a core test, test_iso230.py, run where ROS refuses to import, takes
+    # run_test from this module, and ros.client imports rclpy)
     from motion_ctrl.ros.client import FAULTS
-    from msg_defs.status import Status
-    word = axis.client.status[args.axis] or 0
+    word = axis.client.status[name] or 0
     if word & FAULTS or not word & Status.ENABLED:
-        raise SessionError(f'axis {args.axis} is not ready to move ({Status(word)!r}): '
-                               f'reset and enable it first (services {args.axis}/reset, '
-                               f'{args.axis}/enable)')
+        raise SessionError(f'axis {name} is not ready to move ({Status(word)!r}): '
+                               f'reset and enable it first (services {name}/reset, '
+                               f'{name}/enable)')
+
+
+def _plan(axis: AxisUnderTest, args, log) -> tuple[dict, float, float, np.ndarray]:
+    """The axis's registers, the travel (--range or default_travel) checked against the soft
+    limits and the reversal hysteresis, and the targets; logs the plan. (registers, lo, hi,
+    targets)"""
     regs = axis.get('feedback', 'integration_mode', 'soft_limit_min', 'soft_limit_max',
                     'load_counts_per_m', 'backlash_hysteresis', *COMP_REGISTERS)
-    cpm = regs['load_counts_per_m']
     lo, hi = (args.range if args.range else
               default_travel(regs['soft_limit_min'], regs['soft_limit_max'], args.overtravel))
     if args.overtravel <= 2 * regs['backlash_hysteresis']:
@@ -95,82 +141,73 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
         raise SessionError('the compensation tables start at position 0: calibrate a travel '
                                'at or above 0')
     targets = iso230.plan_targets(lo, hi, args.targets)
-    saved = {k: regs[k] for k in ('feedback', 'integration_mode', *COMP_REGISTERS)}
     log(f'calibrate: axis {args.axis}, {len(targets)} targets {lo * 1e3:.3f} .. {hi * 1e3:.3f} mm '
         f'(intervals {np.diff(targets).min() * 1e3:.2f} .. {np.diff(targets).max() * 1e3:.2f} mm), '
         f'{args.cycles} bidirectional cycles, overtravel {args.overtravel * 1e3:g} mm')
     if args.cycles < iso230.MIN_CYCLES or args.targets < iso230.MIN_TARGETS:
         log(f'calibrate: note: ISO 230-2 asks for >= {iso230.MIN_TARGETS} targets and '
             f'>= {iso230.MIN_CYCLES} cycles; this run is shorter')
+    return regs, lo, hi, targets
 
-    def progress(label):
-        last = [time.monotonic()]
 
-        def show(k, n):
-            if time.monotonic() - last[0] > 10.0 or k == n:
-                last[0] = time.monotonic()
-                log(f'calibrate: {label}: move {k}/{n}')
-        return show
+def _progress(log, label: str):
+    """progress(k, n) for run_test: logs the move count every 10 s and at the end."""
+    last = [time.monotonic()]
 
-    seconds = {}
-    t0 = time.monotonic()
-    axis.move(targets[0] - args.overtravel, args.move_timeout)     # at rest before the switch
+    def show(k, n):
+        if time.monotonic() - last[0] > 10.0 or k == n:
+            last[0] = time.monotonic()
+            log(f'calibrate: {label}: move {k}/{n}')
+    return show
+
+
+def _uncompensated_motor_loop(axis: AxisUnderTest, below: float, move_timeout: float) -> None:
+    """The axis moved to `below` (at rest before the switch), then on the motor loop with its
+    compensation off and its integrator on through the moves."""
+    axis.move(below, move_timeout)
     # Motor loop, compensation off: what the tables are to correct. The integrator on through
     # each approach (PMAC Ixx34 = 0): it presses the nut onto the flank it came from; held
     # during moves, it left the slide where friction stopped it, and the reversal error read
     # 8 counts of the default slide's 21-count gap.
     axis.set({'feedback': 'motor', 'integration_mode': 'always', 'backlash_distance': 0.0,
               'leadscrew_table': [], 'backlash_table': []})
-    applied = False
+
+
+def _write_tables(before: iso230.Iso230, args, out: pathlib.Path, lo: float, hi: float,
+                  targets, cpm: float, log) -> tuple[iso230.Tables, pathlib.Path]:
+    """The compensation tables from the test before (PMAC COMP / BLCOMP and Ixx86 as `ros2
+    param load` YAML, a LinuxCNC COMP_FILE) written into `out`; (the tables, the YAML's path)."""
+    tables = iso230.build_tables(before, args.table_tolerance / cpm, args.spacing)
+    header = (f'motion_ctrl calibrate: ISO 230-2 test of axis {args.axis} on feedback: motor, '
+              f'{len(targets)} targets {lo:g} .. {hi:g} m, {args.cycles} cycles\n'
+              f'B {before.B * cpm:.2f} counts, E {before.E * cpm:.2f} counts before; '
+              f'table spacing {tables.spacing:g} m (fit within '
+              f'{tables.residual * cpm:.2f} counts)\n'
+              f'load with: ros2 param load /controller <this file>')
+    yaml_path, comp_path = out / 'compensation.yaml', out / 'linuxcnc_comp.txt'
+    yaml_path.write_text(iso230.params_yaml(tables, args.axis, comment=header))
+    comp_path.write_text(iso230.linuxcnc_comp_file(before, args.comp_units))
+    log(f'calibrate: Ixx86 backlash_distance {tables.backlash_distance * 1e6:.2f} um '
+        f'({tables.backlash_distance * cpm:.2f} counts); COMP/BLCOMP '
+        f'{len(tables.leadscrew_table)} entries at {tables.spacing * 1e3:.3f} mm (reproduce '
+        f'the measured means within {tables.residual * cpm:.2f} counts)')
+    log(f'calibrate: wrote {yaml_path} and {comp_path} (LinuxCNC COMP_FILE_TYPE = 1, '
+        f'{args.comp_units})')
+    return tables, yaml_path
+
+
+def _put_back(axis: AxisUnderTest, args, saved: dict, applied: bool, below: float,
+              log) -> None:
+    """The axis moved to `below` and its registers put back as they were, but the new tables
+    when applied and the motor loop with --keep-motor."""
+    restore = {k: v for k, v in saved.items() if not (applied and k in COMP_REGISTERS)}
+    if args.keep_motor and 'feedback' in restore:
+        del restore['feedback']
     try:
-        approach = (args.approach, args.approach_time)
-        before = run_test(axis, targets, args.cycles, args.overtravel, args.dwell, args.average,
-                          args.move_timeout, progress('before'), approach)
-        seconds['before'] = time.monotonic() - t0
-        tables = iso230.build_tables(before, args.table_tolerance / cpm, args.spacing)
-        header = (f'motion_ctrl calibrate: ISO 230-2 test of axis {args.axis} on feedback: motor, '
-                  f'{len(targets)} targets {lo:g} .. {hi:g} m, {args.cycles} cycles\n'
-                  f'B {before.B * cpm:.2f} counts, E {before.E * cpm:.2f} counts before; '
-                  f'table spacing {tables.spacing:g} m (fit within '
-                  f'{tables.residual * cpm:.2f} counts)\n'
-                  f'load with: ros2 param load /controller <this file>')
-        yaml_path, comp_path = out / 'compensation.yaml', out / 'linuxcnc_comp.txt'
-        yaml_path.write_text(iso230.params_yaml(tables, args.axis, comment=header))
-        comp_path.write_text(iso230.linuxcnc_comp_file(before, args.comp_units))
-        log(f'calibrate: Ixx86 backlash_distance {tables.backlash_distance * 1e6:.2f} um '
-            f'({tables.backlash_distance * cpm:.2f} counts); COMP/BLCOMP '
-            f'{len(tables.leadscrew_table)} entries at {tables.spacing * 1e3:.3f} mm (reproduce '
-            f'the measured means within {tables.residual * cpm:.2f} counts)')
-        log(f'calibrate: wrote {yaml_path} and {comp_path} (LinuxCNC COMP_FILE_TYPE = 1, '
-            f'{args.comp_units})')
-        after = None
-        if args.apply:
-            axis.move(targets[0] - args.overtravel, args.move_timeout)
-            axis.load_file(yaml_path)
-            applied = True
-            t1 = time.monotonic()
-            after = run_test(axis, targets, args.cycles, args.overtravel, args.dwell,
-                             args.average, args.move_timeout, progress('after'), approach)
-            seconds['after'] = time.monotonic() - t1
-    finally:
-        restore = {k: v for k, v in saved.items() if not (applied and k in COMP_REGISTERS)}
-        if args.keep_motor and 'feedback' in restore:
-            del restore['feedback']
-        try:
-            axis.move(targets[0] - args.overtravel, args.move_timeout)
-        except SessionError as e:
-            log(f'calibrate: {e}')
-        axis.set(restore)
-    seconds['total'] = time.monotonic() - t0
-    runs = {'before': before} | ({'after (tables applied)': after} if after is not None else {})
-    report = iso230.format_report(runs, cpm)
-    png = out / 'calibration.png'
-    iso230.plot_report(runs, png, cpm, title=f'ISO 230-2, axis {args.axis}, feedback motor, '
-                       f'{len(targets)} targets x {args.cycles} cycles')
-    log(report)
-    log(f'calibrate: plot in {png}; ' + ', '.join(f'{k} {v:.1f} s' for k, v in seconds.items()))
-    (out / 'report.md').write_text(report + '\n')
-    return dict(before=before, after=after, tables=tables, seconds=seconds, targets=targets)
+        axis.move(below, args.move_timeout)
+    except SessionError as e:
+        log(f'calibrate: {e}')
+    axis.set(restore)
 
 
 def parser() -> argparse.ArgumentParser:

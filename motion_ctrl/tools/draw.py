@@ -25,12 +25,20 @@ import pathlib
 import sys
 import time
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from scipy.spatial import cKDTree
 
+import msg_defs as md
+from msg_defs.status import Status
 from motion_ctrl.core import trajectory as tj
-
-from motion_ctrl.ros import ros_env
 from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, axis_defaults
+from motion_ctrl.ros import ros_env
+from motion_ctrl.ros.processes import first_fault, start_slide
+
+# rclpy and the message packages are imported inside the functions that use them: a core test
+# (test_coordinated.py, run where ROS refuses to import) takes shape_points and judge from here.
 
 AXES = ('x', 'y')
 PATH_DT = 5e-5        # s: the commanded path is sampled this finely for the contour error
@@ -69,15 +77,12 @@ def judge(points: tj.Points, start: dict, truth_t, truth_xy) -> dict:
 
 
 def plot(results: dict, png: pathlib.Path, magnify: float = 200.0) -> None:
-    import matplotlib
     matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
     fig, axs = plt.subplots(2, len(results), figsize=(6.5 * len(results), 10), squeeze=False)
     for col, (shape, r) in enumerate(results.items()):
         ax = axs[0][col]
         path, xy = r['path'], r['truth']
         # The deviation, magnified along the way from the nearest commanded point (ballbar).
-        from scipy.spatial import cKDTree
         near = path[cKDTree(path).query(xy)[1]]
         shown = near + magnify * (xy - near)
         ax.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, 'k-', lw=1, label='commanded path')
@@ -107,8 +112,6 @@ def commanded(client, timeout: float = 5.0) -> dict | None:
     None. Read when needed, not followed: a 1 kHz stream more in this process would queue its
     events ahead of the status words the example waits on."""
     from sensor_msgs.msg import JointState
-
-    import msg_defs as md
     command: dict = {}
     sub = client.create_subscription(JointState, md.REFERENCE_STATES,
                                      lambda m: command.update(zip(m.name, m.position)),
@@ -138,8 +141,6 @@ class _ActionSender:
         """Send the goal, wait for its result; the outcome's name (or why none came)."""
         from action_msgs.msg import GoalStatus
         from builtin_interfaces.msg import Time
-
-        import msg_defs as md
         goal = self.Goal(trajectory=md.joint_trajectory(
             Time(), names, points.times, points.positions, points.velocities,
             points.accelerations))
@@ -157,7 +158,7 @@ class _ActionSender:
                 GoalStatus.STATUS_CANCELED: 'CANCELED'}.get(r.status, str(r.status))
 
 
-def main(argv=None) -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--shapes', default='circle,square',
                     help='comma-separated: circle, square (default both)')
@@ -179,6 +180,13 @@ def main(argv=None) -> int:
                          '/controller/follow_joint_trajectory (as MoveIt does) instead of on '
                          'joint_trajectory; the last column is then the goal\'s result')
     ap.add_argument('-o', '--out', default=None, help='directory (default out/draw-<time>)')
+    return ap
+
+
+def main(argv=None) -> int:
+    """Start plant and controller with axes x and y, draw each shape, print its figures, plot
+    them; exit 0 when every shape finished."""
+    ap = parser()
     args = ap.parse_args(argv)
     shapes = [s.strip() for s in args.shapes.split(',') if s.strip()]
     extra = dict(p.split(':=', 1) for p in args.param if ':=' in p)
@@ -188,34 +196,17 @@ def main(argv=None) -> int:
         ap.error(f'--shapes: circle and/or square, got {args.shapes!r}')
     domain = ros_env.private_domain()
     import rclpy
-    from sensor_msgs.msg import JointState
-
-    import msg_defs as md
-    from msg_defs.status import Status
     from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import first_fault, start_slide
 
     out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/draw-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
-    axes = '[' + ', '.join(f"'{a}'" for a in AXES) + ']'     # quoted: y is a YAML boolean
-    ctrl = {'axes': axes} | {f'{a}.{k}': v for a in AXES for k, v in
-                             (('feedback', args.feedback), ('friction_ff', args.friction_ff),
-                              ('integration_mode', 'always'))}
-    rt = {'realtime_priority': args.realtime_priority}
-    ctrl |= rt | extra
     print(f'draw: starting plant and controller for axes x, y (ROS_DOMAIN_ID={domain}, logs in '
           f'{out})')
-    nodes = start_slide(ctrl, {'axes': axes} | rt, log_dir=out)
+    nodes = _start_nodes(args, extra, out)
     rclpy.init()
     client = SlideClient(axes=AXES)
-    truth: list = []
-
-    def on_truth(msg):
-        d = dict(zip(msg.name, msg.position))
-        if all(md.load_joint(a) in d for a in AXES):
-            truth.append((time.time(), d[md.load_joint('x')], d[md.load_joint('y')]))
-    client.create_subscription(JointState, md.PLANT_STATES, on_truth, md.SERVO_READ_QOS)
-    results = {}
+    truth = _follow_truth(client)
+    results: dict = {}
     code = 0
     try:
         if not client.wait_ready(20.0) or commanded(client) is None:
@@ -228,40 +219,12 @@ def main(argv=None) -> int:
         print(f'{"shape":<8}{"points":>7}{"time [s]":>9}{"contour RMS":>13}{"peak":>8}'
               f'{"x error":>9}{"y error":>9}{done_column:>13}   (counts; after 1st quarter)')
         for shape in shapes:
-            start = commanded(client)
-            if start is None:
-                print(f'{shape:<8}no reference_states from the controller (the logs are in {out})')
+            row, r = _draw_shape(client, action, shape, args, truth, nodes, out)
+            print(row)
+            if r is None:
                 code = 1
-                continue
-            points, _ = shape_points(shape, start, args.radius, args.speed)
-            truth.clear()
-            t0 = time.time()
-            if action is not None:
-                outcome = action.follow(list(AXES), points)
-                done = outcome == 'SUCCEEDED'
             else:
-                outcome = 'yes'
-                done = client.follow(list(AXES), points.times, points.positions,
-                                     points.velocities, points.accelerations) is not None
-            # the user's copy of plant_states can lag a loaded machine (doc/design_notes.md): the
-            # final figures from a sample of after the end
-            client.truth_since(time.time())
-            client.spin_for(0.05)
-            samples = np.array(truth).reshape(-1, 3)
-            if not done or len(samples) == 0:
-                why = first_fault(nodes) or 'no fault logged; ' + ', '.join(
-                    f'{a} {Status(client.status[a] or 0)!r}' for a in AXES)
-                print(f'{shape:<8}did not finish: {why} (the logs are in {out})')
-                code = 1
-                continue
-            r = judge(points, start, samples[:, 0] - t0, samples[:, 1:])
-            r['truth'] = samples[:, 1:]
-            results[shape] = r
-            end = points.positions[-1]
-            errs = [(samples[-1, 1 + j] - end[j]) * LOAD_COUNTS_PER_M for j in range(2)]
-            print(f'{shape:<8}{len(points.times):>7}{points.times[-1]:>9.2f}{r["rms"]:>13.2f}'
-                  f'{r["peak"]:>8.2f}{errs[0]:>+9.2f}{errs[1]:>+9.2f}'
-                  f'{outcome:>13}')
+                results[shape] = r
     finally:
         client.destroy_node()
         rclpy.try_shutdown()
@@ -272,6 +235,66 @@ def main(argv=None) -> int:
         plot(results, png)
         print(f'draw: plot in {png}')
     return code
+
+
+def _start_nodes(args, extra: dict, out: pathlib.Path) -> list:
+    """Plant and controller for axes x and y: each axis on --feedback with --friction-ff,
+    integrating always (PMAC Ixx34 = 0), both nodes at --realtime-priority."""
+    axes = '[' + ', '.join(f"'{a}'" for a in AXES) + ']'     # quoted: y is a YAML boolean
+    ctrl = {'axes': axes} | {f'{a}.{k}': v for a in AXES for k, v in
+                             (('feedback', args.feedback), ('friction_ff', args.friction_ff),
+                              ('integration_mode', 'always'))}
+    rt = {'realtime_priority': args.realtime_priority}
+    ctrl |= rt | extra
+    return start_slide(ctrl, {'axes': axes} | rt, log_dir=out)
+
+
+def _follow_truth(client) -> list:
+    """The true XY (plant_states' load positions) as (epoch s, x, y), appended as they come."""
+    from sensor_msgs.msg import JointState
+    truth: list = []
+
+    def on_truth(msg):
+        d = dict(zip(msg.name, msg.position))
+        if all(md.load_joint(a) in d for a in AXES):
+            truth.append((time.time(), d[md.load_joint('x')], d[md.load_joint('y')]))
+    client.create_subscription(JointState, md.PLANT_STATES, on_truth, md.SERVO_READ_QOS)
+    return truth
+
+
+def _draw_shape(client, action, shape: str, args, truth: list, nodes,
+                out: pathlib.Path) -> tuple[str, dict | None]:
+    """One shape drawn from where the axes are and judged: its row of the table and its
+    figures, or why it did not finish and None."""
+    start = commanded(client)
+    if start is None:
+        return f'{shape:<8}no reference_states from the controller (the logs are in {out})', None
+    points, _ = shape_points(shape, start, args.radius, args.speed)
+    truth.clear()
+    t0 = time.time()
+    if action is not None:
+        outcome = action.follow(list(AXES), points)
+        done = outcome == 'SUCCEEDED'
+    else:
+        outcome = 'yes'
+        done = client.follow(list(AXES), points.times, points.positions,
+                             points.velocities, points.accelerations) is not None
+    # the user's copy of plant_states can lag a loaded machine (doc/design_notes.md): the
+    # final figures from a sample of after the end
+    client.truth_since(time.time())
+    client.spin_for(0.05)
+    samples = np.array(truth).reshape(-1, 3)
+    if not done or len(samples) == 0:
+        why = first_fault(nodes) or 'no fault logged; ' + ', '.join(
+            f'{a} {Status(client.status[a] or 0)!r}' for a in AXES)
+        return f'{shape:<8}did not finish: {why} (the logs are in {out})', None
+    r = judge(points, start, samples[:, 0] - t0, samples[:, 1:])
+    r['truth'] = samples[:, 1:]
+    end = points.positions[-1]
+    errs = [(samples[-1, 1 + j] - end[j]) * LOAD_COUNTS_PER_M for j in range(2)]
+    return (f'{shape:<8}{len(points.times):>7}{points.times[-1]:>9.2f}{r["rms"]:>13.2f}'
+            f'{r["peak"]:>8.2f}{errs[0]:>+9.2f}{errs[1]:>+9.2f}'
+            f'{outcome:>13}'), r
 
 
 if __name__ == '__main__':

@@ -5,6 +5,7 @@ import argparse
 import math
 import re
 import sys
+from typing import NamedTuple
 
 from motion_ctrl.core.notch import Biquad, dc_gain, design, gain_db, lowpass, prewarp_inputs
 from motion_ctrl.core.registers import yaml_float
@@ -67,6 +68,17 @@ def _sweep_extremes(coeffs, T, n=4000):
     return best_lo + best_hi
 
 
+class Design(NamedTuple):
+    """A filter designed for the CLI: its coefficients, the comment lines that say what was
+    asked, the frequency its attenuation is printed at (and what that frequency is), and the
+    comment lines that close the report."""
+    coeffs: tuple
+    asked: list[str]
+    probe: float
+    probe_name: str
+    figures: list[str]
+
+
 def main(argv=None):
     """``ros2 run motion_ctrl notch --resonance HZ [...]``: print the registers as YAML."""
     parser = _build_parser()
@@ -76,83 +88,96 @@ def main(argv=None):
     if not _AXIS_RE.match(a.axis):
         parser.error(f'--axis must be a parameter-name prefix like x or axis_1, got {a.axis!r}')
     T = 1.0 / a.servo_rate
+    d = _lowpass(parser, a, T) if a.lowpass is not None else _notch(parser, a, T)
+    sys.stdout.write('\n'.join(_report(a, T, d)) + '\n')
+    return 0
+
+
+def _lowpass(parser, a, T: float) -> Design:
+    """The second-order low-pass of --lowpass (D only); a parser error on a --resonance option
+    or a design the biquad refuses."""
     nyq = 0.5 * a.servo_rate
-    out = []
-    if a.lowpass is not None:
-        for opt in ('zero_ratio', 'zero_damping', 'pole_ratio', 'pole_damping'):
-            if getattr(a, opt) is not None:
-                parser.error(f'--{opt.replace("_", "-")} applies to --resonance, not --lowpass')
-        zeta = DEFAULT_LOWPASS_DAMPING if a.damping is None else a.damping
-        try:
-            coeffs = lowpass(a.lowpass, zeta, T, prewarp=a.prewarp)
-            Biquad.validate(*coeffs)
-        except ValueError as e:
-            parser.error(str(e))
-        out.append('# motion_ctrl second-order low-pass (PMAC Ixx36..Ixx39, D only), '
-                   f'axis {a.axis}')
-        out.append(f'# low-pass {a.lowpass:g} Hz, damping {zeta:g}, servo rate {a.servo_rate:g} Hz '
-                   f'(T = {T:g} s, Nyquist {nyq:g} Hz)')
-        probe = a.lowpass
-        probe_name = 'cut-off'
-    else:
-        if a.damping is not None:
-            parser.error('--damping applies to --lowpass; use --zero-damping/--pole-damping')
-        zr = DEFAULT_ZERO_RATIO if a.zero_ratio is None else a.zero_ratio
-        zd = DEFAULT_ZERO_DAMPING if a.zero_damping is None else a.zero_damping
-        pr = DEFAULT_POLE_RATIO if a.pole_ratio is None else a.pole_ratio
-        pd = DEFAULT_POLE_DAMPING if a.pole_damping is None else a.pole_damping
-        f = a.resonance
-        if not (math.isfinite(f) and 0 < f < nyq):
-            parser.error(f'--resonance {f:g} Hz must be > 0 and below the Nyquist frequency '
-                         f'{nyq:g} Hz of the {a.servo_rate:g} Hz servo rate')
-        for name, v in (('--zero-ratio', zr), ('--pole-ratio', pr)):
-            if not (math.isfinite(v) and v > 0):
-                parser.error(f'{name} must be > 0, got {v:g}')
-        try:
-            coeffs = design(zr * f, zd, pr * f, pd, T, prewarp=a.prewarp)
-            Biquad.validate(*coeffs)
-        except ValueError as e:
-            parser.error(str(e))
-        out.append(f'# motion_ctrl notch (PMAC Ixx36..Ixx39), axis {a.axis}')
-        out.append(f'# resonance {f:g} Hz, servo rate {a.servo_rate:g} Hz (T = {T:g} s, '
-                   f'Nyquist {nyq:g} Hz)')
-        out.append(f'# zeros {zr * f:g} Hz (ratio {zr:g}), damping {zd:g}; '
-                   f'poles {pr * f:g} Hz (ratio {pr:g}), damping {pd:g}')
-        if a.prewarp:
-            fz, zz = prewarp_inputs(zr * f, zd, T)
-            fp, zp = prewarp_inputs(pr * f, pd, T)
-            out.append("# = the manual's formula fed with equivalent inputs (outside its usual "
-                       f'range, which is the point): zeros {fz:.6g} Hz damping {zz:.6g}; '
-                       f'poles {fp:.6g} Hz damping {zp:.6g}')
-        probe = f
-        probe_name = 'resonance'
+    for opt in ('zero_ratio', 'zero_damping', 'pole_ratio', 'pole_damping'):
+        if getattr(a, opt) is not None:
+            parser.error(f'--{opt.replace("_", "-")} applies to --resonance, not --lowpass')
+    zeta = DEFAULT_LOWPASS_DAMPING if a.damping is None else a.damping
+    try:
+        coeffs = lowpass(a.lowpass, zeta, T, prewarp=a.prewarp)
+        Biquad.validate(*coeffs)
+    except ValueError as e:
+        parser.error(str(e))
+    asked = ['# motion_ctrl second-order low-pass (PMAC Ixx36..Ixx39, D only), '
+             f'axis {a.axis}',
+             f'# low-pass {a.lowpass:g} Hz, damping {zeta:g}, servo rate {a.servo_rate:g} Hz '
+             f'(T = {T:g} s, Nyquist {nyq:g} Hz)']
+    _, _, f_hi, g_hi = _sweep_extremes(coeffs, T)
+    figures = [f'# gain at Nyquist: {gain_db(coeffs, nyq, T):+.2f} dB; highest gain: '
+               f'{g_hi:+.2f} dB at {f_hi:.1f} Hz']
+    return Design(coeffs, asked, a.lowpass, 'cut-off', figures)
+
+
+def _notch(parser, a, T: float) -> Design:
+    """The notch of --resonance: zeros and poles at their ratios of it, each option's default
+    where not given; a parser error on a bad value or a design the biquad refuses."""
+    nyq = 0.5 * a.servo_rate
+    if a.damping is not None:
+        parser.error('--damping applies to --lowpass; use --zero-damping/--pole-damping')
+    zr = DEFAULT_ZERO_RATIO if a.zero_ratio is None else a.zero_ratio
+    zd = DEFAULT_ZERO_DAMPING if a.zero_damping is None else a.zero_damping
+    pr = DEFAULT_POLE_RATIO if a.pole_ratio is None else a.pole_ratio
+    pd = DEFAULT_POLE_DAMPING if a.pole_damping is None else a.pole_damping
+    f = a.resonance
+    if not (math.isfinite(f) and 0 < f < nyq):
+        parser.error(f'--resonance {f:g} Hz must be > 0 and below the Nyquist frequency '
+                     f'{nyq:g} Hz of the {a.servo_rate:g} Hz servo rate')
+    for name, v in (('--zero-ratio', zr), ('--pole-ratio', pr)):
+        if not (math.isfinite(v) and v > 0):
+            parser.error(f'{name} must be > 0, got {v:g}')
+    try:
+        coeffs = design(zr * f, zd, pr * f, pd, T, prewarp=a.prewarp)
+        Biquad.validate(*coeffs)
+    except ValueError as e:
+        parser.error(str(e))
+    asked = [f'# motion_ctrl notch (PMAC Ixx36..Ixx39), axis {a.axis}',
+             f'# resonance {f:g} Hz, servo rate {a.servo_rate:g} Hz (T = {T:g} s, '
+             f'Nyquist {nyq:g} Hz)',
+             f'# zeros {zr * f:g} Hz (ratio {zr:g}), damping {zd:g}; '
+             f'poles {pr * f:g} Hz (ratio {pr:g}), damping {pd:g}']
+    if a.prewarp:
+        fz, zz = prewarp_inputs(zr * f, zd, T)
+        fp, zp = prewarp_inputs(pr * f, pd, T)
+        asked.append("# = the manual's formula fed with equivalent inputs (outside its usual "
+                     f'range, which is the point): zeros {fz:.6g} Hz damping {zz:.6g}; '
+                     f'poles {fp:.6g} Hz damping {zp:.6g}')
+    f_lo, g_lo, f_hi, g_hi = _sweep_extremes(coeffs, T)
+    other = design(zr * f, zd, pr * f, pd, T, prewarp=not a.prewarp)
+    figures = [f'# deepest point: {-g_lo:.2f} dB at {f_lo:.1f} Hz; highest gain: '
+               f'{g_hi:+.2f} dB at {f_hi:.1f} Hz',
+               f'# for comparison, {"without" if a.prewarp else "with"} prewarp: '
+               f'{-gain_db(other, f, T):.2f} dB at {f:g} Hz']
+    return Design(coeffs, asked, f, 'resonance', figures)
+
+
+def _report(a, T: float, d: Design) -> list[str]:
+    """The lines printed: what was asked, the prewarp, the DC gain and the attenuation, the
+    design's figures, then the registers as `ros2 param load` YAML."""
+    out = list(d.asked)
     if a.prewarp:
         out.append('# prewarp: ON (discrete zeros/poles at z = exp(s T), centred where asked); '
                    "--no-prewarp gives the manual's plain backward-Euler formula")
     else:
         out.append("# prewarp: OFF (the manual's plain backward-Euler formula; frequencies warp "
                    'when 2 pi f T is not small)')
-    dc = dc_gain(*coeffs)
-    g_probe = gain_db(coeffs, probe, T)
-    f_lo, g_lo, f_hi, g_hi = _sweep_extremes(coeffs, T)
-    out.append(f'# DC gain before normalisation: {dc:.6g} (the controller normalises the filter '
-               'to unity DC gain; do not rescale kp)')
-    out.append(f'# attenuation at the {probe_name} {probe:g} Hz: {-g_probe:.2f} dB')
-    if a.lowpass is None:
-        out.append(f'# deepest point: {-g_lo:.2f} dB at {f_lo:.1f} Hz; highest gain: '
-                   f'{g_hi:+.2f} dB at {f_hi:.1f} Hz')
-        other = design(zr * f, zd, pr * f, pd, T, prewarp=not a.prewarp)
-        out.append(f'# for comparison, {"without" if a.prewarp else "with"} prewarp: '
-                   f'{-gain_db(other, f, T):.2f} dB at {f:g} Hz')
-    else:
-        out.append(f'# gain at Nyquist: {gain_db(coeffs, nyq, T):+.2f} dB; highest gain: '
-                   f'{g_hi:+.2f} dB at {f_hi:.1f} Hz')
+    out.append(f'# DC gain before normalisation: {dc_gain(*d.coeffs):.6g} (the controller '
+               'normalises the filter to unity DC gain; do not rescale kp)')
+    out.append(f'# attenuation at the {d.probe_name} {d.probe:g} Hz: '
+               f'{-gain_db(d.coeffs, d.probe, T):.2f} dB')
+    out.extend(d.figures)
     out.append('controller:')
     out.append('  ros__parameters:')
-    for name, v in zip(('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2'), coeffs):
+    for name, v in zip(('notch_n1', 'notch_n2', 'notch_d1', 'notch_d2'), d.coeffs):
         out.append(f'    {a.axis}.{name}: {yaml_float(v)}')
-    sys.stdout.write('\n'.join(out) + '\n')
-    return 0
+    return out
 
 
 if __name__ == '__main__':

@@ -15,16 +15,19 @@ prints its rate before and during each (motion_ctrl.procedures.floods).
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
-import pathlib
+import signal
 import subprocess
 import sys
 import threading
 import time
 
-from motion_ctrl.ros import ros_env, servo_bus
+import rclpy
+
+from msg_defs.status import Status
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
+from motion_ctrl.procedures import floods
+from motion_ctrl.ros import ros_env
+from motion_ctrl.ros.client import FAULTS, SlideClient
 
 LATE_WAIT = 25.0     # s more for a MOTION_DONE not seen in 5 s (a bridge's copies late)
 BUSY_LOOP = 'while True: pass'
@@ -106,8 +109,6 @@ class Soak:
         self.target = 0.0
 
     def move(self) -> None:
-        from msg_defs.status import Status
-        from motion_ctrl.ros.client import FAULTS
         c = self.client
         self.target = self.distance if self.target == 0.0 else 0.0
         mark, t0 = len(c.status_log[self.axis]), time.monotonic()
@@ -175,6 +176,24 @@ class HostSteal(threading.Thread):
         return any(abs(t - stamp) <= window for t, _ in self.events)
 
 
+class Beside:
+    """What runs beside the nodes in a soak: the busy CPU loops (started here), the visitors
+    and the recorder; `stop` ends what still runs."""
+
+    def __init__(self, busy: int):
+        self.busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(busy)]
+        self.visitors: Visitors | None = None
+        self.recorder: subprocess.Popen | None = None
+
+    def stop(self) -> None:
+        if self.visitors is not None and not self.visitors.done():
+            self.visitors.stop()
+        for b in self.busy:
+            b.kill()
+        if self.recorder is not None and self.recorder.poll() is None:
+            self.recorder.kill()
+
+
 def fault_stamps(log: str) -> list[float]:
     """Epoch stamps of the FEEDBACK_FAULT and amplifier-fault lines of a node's log
     ('[LEVEL] [1795460490.580106665] [node]: ...')."""
@@ -188,7 +207,7 @@ def fault_stamps(log: str) -> list[float]:
     return stamps
 
 
-def main(argv=None) -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--minutes', type=float, default=10.0)
     ap.add_argument('--interval', type=float, default=5.0,
@@ -208,80 +227,43 @@ def main(argv=None) -> int:
     ap.add_argument('--floods', action='store_true',
                     help='instead: floods and oversized inputs, the loop rate before and during '
                          'each (motion_ctrl.procedures.floods, doc/input_limits.md)')
-    a = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None) -> int:
+    """Start the slide, soak it (moves while visitors come and go), report; exit 0 when every
+    move landed within a count with no fault and no visitor failed."""
+    a = parser().parse_args(argv)
     if a.floods:
-        from motion_ctrl.procedures import floods
         return floods.main(a.realtime_priority, a.servo_bus, a.out)
     domain = ros_env.private_domain()
-    import rclpy
-    from motion_ctrl.ros.client import SlideClient
-    from motion_ctrl.ros.processes import start_slide
-
-    out = pathlib.Path(a.out or datetime.datetime.now().strftime('out/soak-%Y%m%d-%H%M%S'))
-    out.mkdir(parents=True, exist_ok=True)
+    out = floods.log_dir(a.out, 'soak')
     print(f'soak: {a.minutes:g} min of 1-inch moves, a visitor every {a.interval:g} s, '
           f'{a.busy} busy loop(s), realtime_priority {a.realtime_priority}, servo bus '
           f'{a.servo_bus} (ROS_DOMAIN_ID={domain}, logs in {out})', flush=True)
-    rt = {'realtime_priority': a.realtime_priority}
-    os.environ[servo_bus.ENV] = a.servo_bus
-    nodes = start_slide(rt, rt, log_dir=out)
-    busy = [subprocess.Popen([sys.executable, '-c', BUSY_LOOP]) for _ in range(a.busy)]
+    nodes = floods.start_nodes(a.realtime_priority, a.servo_bus, out)
+    beside = Beside(a.busy)
     rclpy.init()
     client = SlideClient(services=True)
-    visitors = recorder = None
     steal = HostSteal()
     steal.start()
     try:
         if not client.wait_ready(30.0):
             print(f'soak: the nodes did not come up ({client.not_ready()})', file=sys.stderr)
             return 1
-        soak = Soak(client)
-        for _ in range(WARM_UP_MOVES):   # (the streams' histories fill during the first moves)
-            soak.move()
-        processes = []                   # (what, pid): each node's loop, and its bridge
-        for name, n in zip(('plant', 'controller'), nodes):
-            loop = n.servo_pid()
-            processes.append((f'{name} loop', loop))
-            if loop != n.proc.pid:
-                processes.append((f'{name} bridge', n.proc.pid))
-        rss0 = [rss_kb(pid) for _, pid in processes]
-        visitors = Visitors(a.interval, a.visitors, a.parallel).start()
-        end = time.monotonic() + 60.0 * a.minutes
-        while (not visitors.done() if a.visitors else time.monotonic() < end):
-            soak.move()
-            if a.record:
-                recorder = _record_between(recorder, visitors, out / 'bag')
-        soak.move()
-        visitors.stop()
-        rss1 = [rss_kb(pid) for _, pid in processes]
+        soak, processes, rss = _soak(a, client, nodes, beside, out)
     finally:
-        if visitors is not None and not visitors.done():
-            visitors.stop()
-        for b in busy:
-            b.kill()
-        if recorder is not None and recorder.poll() is None:
-            recorder.kill()
+        beside.stop()
         client.destroy_node()
         rclpy.try_shutdown()
         rcs = [n.stop() for n in reversed(nodes)]
+    visitors, recorder = beside.visitors, beside.recorder
+    assert visitors is not None                 # (made by _soak, which returned)
     log = (out / 'controller.log').read_text()
-    print(f'soak: {soak.summary()}; visitors {visitors.finished} '
-          f'({len(visitors.failed)} failed); FEEDBACK_FAULT lines in the controller log: '
-          f'{log.count("FEEDBACK_FAULT")}')
-    for (name, _), r0, r1 in zip(processes, rss0, rss1):
-        print(f'soak: {name} RSS {r0} kB -> {r1} kB ({100.0 * (r1 - r0) / r0:+.1f} %)')
-    print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
-    for f in soak.faults:
-        print(f'soak: fault: {f}')
-    for f in visitors.failed:
-        print(f'soak: visitor failed: {f}')
+    _report(soak, visitors, processes, rss, rcs, log)
     steal.running = False
     stamps = fault_stamps(log) + fault_stamps((out / 'plant.log').read_text())
-    alive = sum(any(a <= s <= b for a, b in visitors.spans) for s in stamps)
-    print(f'soak: host steal: {sum(j for _, j in steal.events)} jiffies in '
-          f'{len(steal.events)} bursts; of the {len(stamps)} FEEDBACK_FAULT / amplifier-fault '
-          f'lines, {sum(steal.near(s) for s in stamps)} within 0.2 s of a steal burst, {alive} '
-          'while a visitor was alive')
+    _report_steal(steal, stamps, visitors)
     if a.record:
         print(f'soak: recorder exit code {recorder.returncode if recorder else None}')
     ok = (not soak.faults and soak.within_1_count == soak.moves and not visitors.failed
@@ -290,9 +272,58 @@ def main(argv=None) -> int:
     return 0 if ok else 1
 
 
+def _soak(a, client, nodes, beside: Beside, out) -> tuple[Soak, list, tuple[list, list]]:
+    """The warm-up moves, then moves while the visitors come (and `record` runs, --record),
+    until --minutes or --visitors; (the score, the nodes' processes as (what, pid), their RSS
+    [kB] after the warm-up and at the end)."""
+    soak = Soak(client)
+    for _ in range(WARM_UP_MOVES):   # (the streams' histories fill during the first moves)
+        soak.move()
+    processes = []                   # (what, pid): each node's loop, and its bridge
+    for name, n in zip(('plant', 'controller'), nodes):
+        loop = n.servo_pid()
+        processes.append((f'{name} loop', loop))
+        if loop != n.proc.pid:
+            processes.append((f'{name} bridge', n.proc.pid))
+    rss0 = [rss_kb(pid) for _, pid in processes]
+    visitors = beside.visitors = Visitors(a.interval, a.visitors, a.parallel).start()
+    end = time.monotonic() + 60.0 * a.minutes
+    while (not visitors.done() if a.visitors else time.monotonic() < end):
+        soak.move()
+        if a.record:
+            beside.recorder = _record_between(beside.recorder, visitors, out / 'bag')
+    soak.move()
+    visitors.stop()
+    rss1 = [rss_kb(pid) for _, pid in processes]
+    return soak, processes, (rss0, rss1)
+
+
+def _report(soak: Soak, visitors: Visitors, processes, rss, rcs, log: str) -> None:
+    """The score, the visitors, the FEEDBACK_FAULT lines, the RSS growth and the exit codes."""
+    print(f'soak: {soak.summary()}; visitors {visitors.finished} '
+          f'({len(visitors.failed)} failed); FEEDBACK_FAULT lines in the controller log: '
+          f'{log.count("FEEDBACK_FAULT")}')
+    for (name, _), r0, r1 in zip(processes, *rss):
+        print(f'soak: {name} RSS {r0} kB -> {r1} kB ({100.0 * (r1 - r0) / r0:+.1f} %)')
+    print(f'soak: nodes stopped (exit codes {", ".join(map(str, rcs))})')
+    for f in soak.faults:
+        print(f'soak: fault: {f}')
+    for f in visitors.failed:
+        print(f'soak: visitor failed: {f}')
+
+
+def _report_steal(steal: HostSteal, stamps: list[float], visitors: Visitors) -> None:
+    """How much CPU the host stole, and how many fault lines came near a steal burst or while
+    a visitor was alive."""
+    alive = sum(any(a <= s <= b for a, b in visitors.spans) for s in stamps)
+    print(f'soak: host steal: {sum(j for _, j in steal.events)} jiffies in '
+          f'{len(steal.events)} bursts; of the {len(stamps)} FEEDBACK_FAULT / amplifier-fault '
+          f'lines, {sum(steal.near(s) for s in stamps)} within 0.2 s of a steal burst, {alive} '
+          'while a visitor was alive')
+
+
 def _record_between(recorder, visitors: Visitors, bag):
     """`record` started when a third of the visitors came, stopped (SIGINT) at two thirds."""
-    import signal
     count = visitors.count or 0                  # (the soak's visitors run to a count)
     if recorder is None and visitors.started >= count // 3:
         return subprocess.Popen([sys.executable, '-m', 'motion_ctrl.tools.record', '-o', str(bag)],
