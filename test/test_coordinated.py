@@ -11,7 +11,7 @@ import kit
 
 from motion_ctrl.core import trajectory as tj
 
-from motion_ctrl.tools import draw
+from motion_ctrl.analysis import contour
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.registers import LOAD_COUNTS_PER_M
 from msg_defs.status import Status as S
@@ -55,11 +55,11 @@ def test_circle_contour_error_and_motion_done(xy):
     end with MOTION_DONE within 1 count of the last point."""
     h = xy
     start = _start(h)
-    points, _ = draw.shape_points('circle', start, R, V)
+    points, _ = contour.shape_points('circle', start, R, V)
     assert h.loop.trajectory(_spec(points)) is None
     t0 = h.time
     t, path_xy = _run_recording(h, points.times[-1] + 1.0)
-    r = draw.judge(points, start, t - t0, path_xy)
+    r = contour.judge(points, start, t - t0, path_xy)
     assert r['rms'] <= 5.0 and r['peak'] <= 15.0, (r['rms'], r['peak'])
     end = points.positions[-1]
     for j, a in enumerate('xy'):
@@ -77,11 +77,11 @@ def test_without_friction_feedforward_the_quadrant_glitch_shows(xy):
         a.enable(True)
     h.run(0.2)
     start = _start(h)
-    points, _ = draw.shape_points('circle', start, R, V)
+    points, _ = contour.shape_points('circle', start, R, V)
     assert h.loop.trajectory(_spec(points)) is None
     t0 = h.time
     t, path_xy = _run_recording(h, points.times[-1] + 0.2)
-    assert draw.judge(points, start, t - t0, path_xy)['peak'] > 15.0
+    assert contour.judge(points, start, t - t0, path_xy)['peak'] > 15.0
 
 
 BAD = {
@@ -166,7 +166,7 @@ def test_stopping_one_axis_stops_the_whole_path(xy):
     STOP deceleration), both at rest with STOPPED; the log says why."""
     h = xy
     start = _start(h)
-    points, _ = draw.shape_points('circle', start, R, V)
+    points, _ = contour.shape_points('circle', start, R, V)
     assert h.loop.trajectory(_spec(points)) is None
     h.run(1.0)
     assert h.axes['x'].stop('stop')[0]

@@ -11,6 +11,7 @@ from kit import COUNT, INCH
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.backlash import BacklashCompensation, interpolate_table
 from motion_ctrl.core.config import BacklashConfig
+from motion_ctrl.plotting.iso230 import plot_report
 
 UM = 1e-6
 
@@ -185,7 +186,7 @@ def test_report_table_and_plot(tmp_path):
     text = iso230.format_report({'before': r}, 1 / COUNT)
     assert '| before | 4.72 | 2.36 | 3.15 | 1.57 | 3.94 | 12.00 | 6.00 | 8.00 | 4.00 | 10.00 |' \
         in text
-    iso230.plot_report({'before': r, 'after': r}, tmp_path / 'r.png', 1 / COUNT)
+    plot_report({'before': r, 'after': r}, tmp_path / 'r.png', 1 / COUNT)
     assert (tmp_path / 'r.png').stat().st_size > 10_000
 
 
@@ -220,11 +221,10 @@ class HarnessAxis:
 
 
 def iso_run(tables=None, plant=None, targets=None, latency_ticks=0, approach=(0.0, 0.0)):
-    from motion_ctrl.tools.calibrate import run_test
     registers = dict(feedback='motor') | (tables.registers('_') if tables else {})
     registers = {k.removeprefix('_.'): v for k, v in registers.items()}
-    return run_test(HarnessAxis(registers, plant, latency_ticks), targets, 5, 0.001, 20, 20,
-                    approach=approach)
+    return iso230.run_cycle(HarnessAxis(registers, plant, latency_ticks), targets, 5, 0.001, 20,
+                            20, approach=approach)
 
 
 @pytest.mark.core_slow

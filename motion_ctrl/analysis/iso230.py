@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -328,33 +329,37 @@ def format_report(runs: dict, counts_per_m: float) -> str:
     return '\n'.join(lines)
 
 
-def plot_report(runs: dict, path, counts_per_m: float, title: str = '') -> None:
-    """PNG: deviation along the travel per direction (means, ±2 s bands), one panel per run."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(len(runs), 1, figsize=(9, 3.6 * len(runs)), sharex=True,
-                             squeeze=False)
-    for ax, (label, r) in zip(axes[:, 0], runs.items()):
-        x = r.targets * 1e3
-        for mean, s, raw, colour, name in ((r.mean_up, r.s_up, r.up, 'tab:blue', '↑ positive'),
-                                           (r.mean_down, r.s_down, r.down, 'tab:red',
-                                            '↓ negative')):
-            ax.fill_between(x, (mean - 2 * s) * counts_per_m, (mean + 2 * s) * counts_per_m,
-                            color=colour, alpha=0.2, label=f'{name}: x̄ ± 2s')
-            ax.plot(x, mean * counts_per_m, 'o-', color=colour, label=f'{name}: x̄')
-            for j in range(raw.shape[1]):
-                ax.plot(x, raw[:, j] * counts_per_m, '.', color=colour, alpha=0.35, ms=3)
-        ax.axhline(0.0, color='k', lw=0.6)
-        h = {k: v * counts_per_m for k, v in r.headline().items()}
-        ax.set_title(f'{label}: A {h["A"]:.1f}, B {h["B"]:.1f}, E {h["E"]:.1f}, '
-                     f'M {h["M"]:.1f}, R {h["R"]:.1f} counts', fontsize=10)
-        ax.set_ylabel('deviation [linear counts]')
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, ncol=2, loc='best')
-    axes[-1, 0].set_xlabel('target position [mm]')
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+class AxisUnderTest(Protocol):
+    """What the test cycle needs of an axis: a move, a move with a slow final approach (a
+    PVT segment of `distance` in `duration`), and the reference reading at rest (procedures.
+    session.AxisUnderTest over ROS; a harness in the tests)."""
+
+    def move(self, position: float, timeout: float) -> None: ...
+
+    def approach(self, position: float, direction: int, distance: float, duration: float,
+                 timeout: float) -> None: ...
+
+    def read_load(self, dwell: int, average: int) -> float: ...
+
+
+def run_cycle(axis: AxisUnderTest, targets, cycles: int, overtravel: float, dwell: int,
+              average: int, move_timeout: float = 10.0, progress=None,
+              approach: tuple[float, float] = (0.0, 0.0)) -> Iso230:
+    """The standard's linear cycle (approach_sequence) on the axis as it is configured, each
+    target reached with `approach` = (distance [m], duration [s]) of slow final segment; the
+    reference read after `dwell` ms as the mean of `average` samples; returns the
+    evaluation. `progress(done, total)` after each step, when given."""
+    readings = {}
+    steps = approach_sequence(targets, cycles, overtravel)
+    for k, step in enumerate(steps):
+        if step.target is None or approach[0] <= 0.0:
+            axis.move(step.position, move_timeout)
+        else:
+            axis.approach(step.position, step.direction, *approach, move_timeout)
+        if step.target is not None:
+            readings[(step.target, step.direction, step.cycle)] = \
+                axis.read_load(dwell, average) - step.position
+        if progress is not None:
+            progress(k + 1, len(steps))
+    up, down = deviations(targets, readings, cycles)
+    return evaluate(targets, up, down)

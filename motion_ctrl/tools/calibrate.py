@@ -28,6 +28,8 @@ import numpy as np
 
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.registers import INCH
+from motion_ctrl.plotting.iso230 import plot_report
+from motion_ctrl.ros.client import FAULTS
 from motion_ctrl.procedures.session import (AxisUnderTest, SessionError, axis_session, pair,
                                        session_arguments, spawned_hardware)
 from msg_defs.status import Status
@@ -37,28 +39,6 @@ COMP_REGISTERS = ('backlash_distance', 'backlash_table', 'backlash_table_spacing
 DEFAULT_LENGTH = 4 * INCH         # the headline's travel (1 and 2 in) and as much again
 DEFAULT_TARGETS = 11              # ~10 mm apart: a quarter of the default screw's error period
 DEFAULT_OVERTRAVEL = 1e-3         # far beyond any backlash + Ixx87 this slide may have
-
-
-def run_test(axis: AxisUnderTest, targets, cycles: int, overtravel: float, dwell: int,
-             average: int, move_timeout: float = 10.0, progress=None,
-             approach: tuple[float, float] = (0.0, 0.0)) -> iso230.Iso230:
-    """The ISO 230-2 linear cycle (iso230.approach_sequence) on the axis as it is configured,
-    each target reached with `approach` = (distance [m], duration [s]) of slow final segment
-    (AxisUnderTest.approach); returns the evaluation."""
-    readings = {}
-    steps = iso230.approach_sequence(targets, cycles, overtravel)
-    for k, step in enumerate(steps):
-        if step.target is None or approach[0] <= 0.0:
-            axis.move(step.position, move_timeout)
-        else:
-            axis.approach(step.position, step.direction, *approach, move_timeout)
-        if step.target is not None:
-            readings[(step.target, step.direction, step.cycle)] = \
-                axis.read_load(dwell, average) - step.position
-        if progress is not None:
-            progress(k + 1, len(steps))
-    up, down = iso230.deviations(targets, readings, cycles)
-    return iso230.evaluate(targets, up, down)
 
 
 def default_travel(soft_min: float, soft_max: float, overtravel: float) -> tuple[float, float]:
@@ -82,8 +62,9 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     applied = False
     try:
         approach = (args.approach, args.approach_time)
-        before = run_test(axis, targets, args.cycles, args.overtravel, args.dwell, args.average,
-                          args.move_timeout, _progress(log, 'before'), approach)
+        before = iso230.run_cycle(axis, targets, args.cycles, args.overtravel, args.dwell,
+                                  args.average, args.move_timeout, _progress(log, 'before'),
+                                  approach)
         seconds['before'] = time.monotonic() - t0
         tables, yaml_path = _write_tables(before, args, out, lo, hi, targets, cpm, log)
         after = None
@@ -92,8 +73,9 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
             axis.load_file(yaml_path)
             applied = True
             t1 = time.monotonic()
-            after = run_test(axis, targets, args.cycles, args.overtravel, args.dwell,
-                             args.average, args.move_timeout, _progress(log, 'after'), approach)
+            after = iso230.run_cycle(axis, targets, args.cycles, args.overtravel, args.dwell,
+                                     args.average, args.move_timeout, _progress(log, 'after'),
+                                     approach)
             seconds['after'] = time.monotonic() - t1
     finally:
         _put_back(axis, args, saved, applied, targets[0] - args.overtravel, log)
@@ -101,7 +83,7 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     runs = {'before': before} | ({'after (tables applied)': after} if after is not None else {})
     report = iso230.format_report(runs, cpm)
     png = out / 'calibration.png'
-    iso230.plot_report(runs, png, cpm, title=f'ISO 230-2, axis {args.axis}, feedback motor, '
+    plot_report(runs, png, cpm, title=f'ISO 230-2, axis {args.axis}, feedback motor, '
                        f'{len(targets)} targets x {args.cycles} cycles')
     log(report)
     log(f'calibrate: plot in {png}; ' + ', '.join(f'{k} {v:.1f} s' for k, v in seconds.items()))
@@ -111,9 +93,6 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
 
 def _check_ready(axis: AxisUnderTest, name: str) -> None:
     """SessionError unless the axis is enabled and without a fault."""
-    # (imported here: a core test, test_iso230.py, run where ROS refuses to import, takes
-    # run_test from this module, and ros.client imports rclpy)
-    from motion_ctrl.ros.client import FAULTS
     word = axis.client.status[name] or 0
     if word & FAULTS or not word & Status.ENABLED:
         raise SessionError(f'axis {name} is not ready to move ({Status(word)!r}): '
@@ -151,7 +130,7 @@ def _plan(axis: AxisUnderTest, args, log) -> tuple[dict, float, float, np.ndarra
 
 
 def _progress(log, label: str):
-    """progress(k, n) for run_test: logs the move count every 10 s and at the end."""
+    """progress(k, n) for iso230.run_cycle: logs the move count every 10 s and at the end."""
     last = [time.monotonic()]
 
     def show(k, n):

@@ -25,93 +25,29 @@ import pathlib
 import sys
 import time
 
-import matplotlib
-import matplotlib.pyplot as plt
 import numpy as np
-from scipy.spatial import cKDTree
+import rclpy
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Time
+from control_msgs.action import FollowJointTrajectory
+from rclpy.action import ActionClient
+from sensor_msgs.msg import JointState
 
 import msg_defs as md
 from msg_defs.status import Status
+from motion_ctrl.analysis.contour import AXES, judge, shape_points
 from motion_ctrl.core import trajectory as tj
-from motion_ctrl.core.registers import LOAD_COUNTS_PER_M, axis_defaults
+from motion_ctrl.core.registers import LOAD_COUNTS_PER_M
+from motion_ctrl.plotting.contour import plot
 from motion_ctrl.ros import ros_env
+from motion_ctrl.ros.client import SlideClient
 from motion_ctrl.ros.processes import first_fault, start_slide
-
-# rclpy and the message packages are imported inside the functions that use them: a core test
-# (test_coordinated.py, run where ROS refuses to import) takes shape_points and judge from here.
-
-AXES = ('x', 'y')
-PATH_DT = 5e-5        # s: the commanded path is sampled this finely for the contour error
-
-
-def shape_points(shape: str, start: dict, radius: float, speed: float) -> tuple[tj.Points, tuple]:
-    """The shape's points, starting (at rest) on the whole slide-encoder count nearest where
-    the axes are; its centre. Both shapes end where they start: on a whole count, which a
-    floored encoder reads as the target from the count up to the next (a point between counts
-    is met, in the fine window, up to 1.6 counts away)."""
-    x0, y0 = (round(start[a] * LOAD_COUNTS_PER_M) / LOAD_COUNTS_PER_M for a in ('x', 'y'))
-    if shape == 'circle':
-        center = (x0 - radius, y0)                 # start_angle 0: the start is centre + (r, 0)
-        return tj.circle(center, radius, speed, start_time=0.1), center
-    side = 2 * radius
-    center = (x0, y0 + side / 2)                  # starts at the middle of the lower side
-    return tj.rounded_square(center, side, radius / 4, speed, start_time=0.1), center
-
-
-def judge(points: tj.Points, start: dict, truth_t, truth_xy) -> dict:
-    """Contour error [counts] of the true XY samples (times from the trajectory's start) after
-    the first quarter of the path (by length) and up to its end."""
-    limits = {a: tj.AxisLimits.from_registers(axis_defaults()) for a in AXES}
-    traj = tj.Trajectory.from_points(list(AXES), points, start={a: (start[a], 0.0, 0.0)
-                                                                 for a in AXES}, limits=limits)
-    t = np.arange(0.0, traj.duration + PATH_DT, PATH_DT)
-    path = traj.sample(t)[0]
-    length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    t_quarter = t[np.searchsorted(length, length[-1] / 4)]
-    err = tj.contour_error(path, truth_xy) * LOAD_COUNTS_PER_M
-    judged = (truth_t >= t_quarter) & (truth_t <= traj.duration)
-    e = err[judged]
-    return {'path': path, 'error': err, 't': truth_t, 'judged': judged,
-            'rms': float(np.sqrt(np.mean(e ** 2))), 'peak': float(e.max()),
-            'duration': traj.duration, 't_quarter': float(t_quarter)}
-
-
-def plot(results: dict, png: pathlib.Path, magnify: float = 200.0) -> None:
-    matplotlib.use('Agg')
-    fig, axs = plt.subplots(2, len(results), figsize=(6.5 * len(results), 10), squeeze=False)
-    for col, (shape, r) in enumerate(results.items()):
-        ax = axs[0][col]
-        path, xy = r['path'], r['truth']
-        # The deviation, magnified along the way from the nearest commanded point (ballbar).
-        near = path[cKDTree(path).query(xy)[1]]
-        shown = near + magnify * (xy - near)
-        ax.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, 'k-', lw=1, label='commanded path')
-        ax.plot(shown[:, 0] * 1e3, shown[:, 1] * 1e3, 'r-', lw=0.8,
-                label=f'true slide, deviation ×{magnify:g}')
-        ax.set_aspect('equal')
-        ax.set_xlabel('x [mm]')
-        ax.set_ylabel('y [mm]')
-        ax.set_title(f'{shape}: contour error RMS {r["rms"]:.2f}, peak {r["peak"]:.2f} counts '
-                     '(after the first quarter)', fontsize=9)
-        ax.legend(fontsize=8, loc='upper right')
-        ax = axs[1][col]
-        ax.plot(r['t'], r['error'], 'b-', lw=0.8)
-        ax.axvspan(0, r['t_quarter'], color='0.9', label='first quarter (not judged)')
-        ax.axvline(r['duration'], color='k', ls=':', label='end of the path')
-        ax.set_xlabel('time from the trajectory start [s]')
-        ax.set_ylabel('contour error [linear counts]')
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
 
 
 def commanded(client, timeout: float = 5.0) -> dict | None:
     """Where the controller commands the axes now ({axis: m}, a reference_states sample), or
     None. Read when needed, not followed: a 1 kHz stream more in this process would queue its
     events ahead of the status words the example waits on."""
-    from sensor_msgs.msg import JointState
     command: dict = {}
     sub = client.create_subscription(JointState, md.REFERENCE_STATES,
                                      lambda m: command.update(zip(m.name, m.position)),
@@ -128,8 +64,6 @@ class _ActionSender:
     execution sends them: the goal, then its result."""
 
     def __init__(self, client):
-        from control_msgs.action import FollowJointTrajectory
-        from rclpy.action import ActionClient
         self.client = client
         self.Goal = FollowJointTrajectory.Goal
         self.action = ActionClient(client, FollowJointTrajectory,
@@ -139,8 +73,6 @@ class _ActionSender:
 
     def follow(self, names, points: tj.Points) -> str:
         """Send the goal, wait for its result; the outcome's name (or why none came)."""
-        from action_msgs.msg import GoalStatus
-        from builtin_interfaces.msg import Time
         goal = self.Goal(trajectory=md.joint_trajectory(
             Time(), names, points.times, points.positions, points.velocities,
             points.accelerations))
@@ -195,8 +127,6 @@ def main(argv=None) -> int:
     if not shapes or any(s not in ('circle', 'square') for s in shapes):
         ap.error(f'--shapes: circle and/or square, got {args.shapes!r}')
     domain = ros_env.private_domain()
-    import rclpy
-    from motion_ctrl.ros.client import SlideClient
 
     out = pathlib.Path(args.out or datetime.datetime.now().strftime('out/draw-%Y%m%d-%H%M%S'))
     out.mkdir(parents=True, exist_ok=True)
@@ -251,7 +181,6 @@ def _start_nodes(args, extra: dict, out: pathlib.Path) -> list:
 
 def _follow_truth(client) -> list:
     """The true XY (plant_states' load positions) as (epoch s, x, y), appended as they come."""
-    from sensor_msgs.msg import JointState
     truth: list = []
 
     def on_truth(msg):
