@@ -7,6 +7,7 @@ complex noise; the model handed to autotune is the two-mass model at the true re
 margins the proposal promises are then checked independently, on the exact discrete plant over
 a dense grid.
 """
+import dataclasses
 import math
 
 import numpy as np
@@ -19,6 +20,9 @@ from motion_ctrl.analysis import identify as idf
 from motion_ctrl.core import notch as nt
 from motion_ctrl.core import registers
 from motion_ctrl.core.registers import INCH
+from motion_ctrl.sim.harness import Harness
+from motion_ctrl.tools import autotune as tool
+from msg_defs.status import Status
 
 FS = 1000.0
 T = 1.0 / FS
@@ -212,8 +216,6 @@ def _demo_moves(regs, plant=None):
     latency: per move (ms from the end of the profile to MOTION_DONE, overshoot [counts],
     final slide error [counts] 0.1 s after MOTION_DONE, the output's peak-to-peak [V] over
     that 0.1 s)."""
-    from msg_defs.status import Status
-    from motion_ctrl.sim.harness import Harness
     h = Harness(regs, plant=plant, latency_ticks=1)
     h.run(0.1)
     out = []
@@ -248,7 +250,6 @@ def test_a_viscous_pole_fitted_high_does_not_leave_the_search_without_a_start():
     then the lowest design crossover (0.5 Hz) puts no gain crossover on the grid at all. Each
     shape's search starts at the lowest crossover that is feasible (it used to give the shape
     up, and with every shape given up: "no gains meet stiff")."""
-    import dataclasses
     ax, (ad, bd) = axis()
     high = dataclasses.replace(ax, model=dataclasses.replace(ax.model, viscous_pole=10.3))
     p = at.propose(high, 'stiff', 'dual')
@@ -283,7 +284,6 @@ def test_stiff_preset_settles_the_demo_moves_faster_than_the_defaults():
 def test_the_tool_offline(tmp_path, capsys):
     """`autotune --from DIR` needs no ROS: the proposal against the register table's defaults
     or a --current file, YAML and the Bode plot written; bad input is a clear error, exit 1."""
-    from motion_ctrl.tools import autotune as tool
     ax, _ = axis()
     m = ax.model
     src = tmp_path / 'identify'

@@ -5,6 +5,7 @@ space (motor mass, screw spring and damper, slide mass, viscous friction on both
 with scipy.signal.cont2discrete (zero-order hold), and motion_ctrl.sim.plant.SlidePlant itself
 (friction and backlash off, read through its quantised encoders).
 """
+import dataclasses
 import math
 
 import numpy as np
@@ -17,6 +18,7 @@ from motion_ctrl.core import notch, registers
 from motion_ctrl.sim.plant import SlidePlant
 from motion_ctrl.core.config import LawConfig
 from motion_ctrl.core.servo_law import ServoLaw
+from motion_ctrl.procedures import identify as procedure
 
 FS = 1000.0
 T = 1.0 / FS
@@ -393,7 +395,6 @@ def test_a_fit_that_does_not_describe_the_axis_is_doubted():
     """identify refuses to report a model (IdentifyError, files kept for a look) when too
     little of the band was measured coherently, or when the fit resolved no anti-resonance (in
     real time on this VM: 21-33 % coherent, slide/motor ratio 0.000, a 50,000 kg motor)."""
-    import dataclasses
     truth = idf.TwoMassModel(1.7, 2.0, 242.0, 0.02, 225.0, 0.02, 2e-5)
     f = np.geomspace(20.0, 400.0, 40)
     resp = {o: idf.FrequencyResponse(f, truth.response(f, output=o, sample_period=T),
@@ -520,28 +521,30 @@ def test_the_ratio_needs_points_measured_on_both_encoders():
 
 
 def test_the_identify_tools_settings_for_the_ratio_runs():
-    """The tool's pieces around the ratio runs, ROS-free: the soft loop keeps kvff's viscous
-    share and the runs have no friction feedforward, the amplitude keeps the slide's predicted
-    acceleration at the share of friction / slide inertia, and run 1's fit is taken where its
-    resonance lies inside the band."""
-    from motion_ctrl.tools import identify as tool
+    """The identify procedure's pieces around the ratio runs (procedures/identify.py),
+    ROS-free: the soft loop keeps kvff's viscous share and the runs have no friction
+    feedforward, the amplitude keeps the slide's predicted acceleration at the share of
+    friction / slide inertia, and run 1's fit is taken where its resonance lies inside the
+    band."""
     regs = registers.axis_defaults()
-    soft = tool.soft_loop(regs, 16.0)
+    soft = procedure.soft_loop(regs, 16.0)
     assert soft == dict(kp=regs['kp'] / 16, ki=0.0, kd=regs['kd'] / 16,
                         kvff=pytest.approx(regs['kvff'] - regs['kd'] + regs['kd'] / 16))
     tuned = regs | {'friction_ff': 0.24, 'friction_ff_at_rest': 0.18}
-    assert tool.run_loop(tuned, 16.0) == soft | {'friction_ff': 0.0, 'friction_ff_at_rest': 0.0}
-    assert tool.run_loop(tuned, 1.0) == {'friction_ff': 0.0, 'friction_ff_at_rest': 0.0}
+    no_ff = {'friction_ff': 0.0, 'friction_ff_at_rest': 0.0}
+    assert procedure.run_loop(tuned, 16.0) == soft | no_ff
+    assert procedure.run_loop(tuned, 1.0) == no_ff
     ad, bd, truth = two_mass()
     f = np.geomspace(20.0, 400.0, 48)
     gm, gl = _exact_response(ad, bd, f)
     sets = [idf.FrequencyResponse(f, g, np.full(f.size, 0.99), FS, 'stepped_sine')
             for g in (gm, gl)]
-    fit = tool.first_fit(*sets, (20.0, 400.0))
+    fit = procedure.first_fit(*sets, (20.0, 400.0))
     assert fit.resonance_hz == pytest.approx(truth['resonance'], rel=1e-3)
     band = (0.75 * truth['antiresonance'], 0.93 * truth['antiresonance'])
-    amp = tool.ratio_amplitude(fit, 0.25, band, cap=10.0)
+    amp = procedure.ratio_amplitude(fit, 0.25, band, cap=10.0)
     fb = np.linspace(*band, 32)
     accel = np.max(np.abs(fit.response(fb, output='load')) * (2 * np.pi * fb) ** 2)
-    assert amp * accel == pytest.approx(tool.RATIO_ACCELERATION_SHARE * 0.25 / fit.load_inertia)
-    assert tool.ratio_amplitude(fit, 0.25, band, cap=0.01) == 0.01
+    assert amp * accel == pytest.approx(procedure.RATIO_ACCELERATION_SHARE * 0.25
+                                        / fit.load_inertia)
+    assert procedure.ratio_amplitude(fit, 0.25, band, cap=0.01) == 0.01

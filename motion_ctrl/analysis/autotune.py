@@ -67,7 +67,9 @@ is more than its own) and the axis hunts at rest (the harness, the stiff proposa
 0.6-0.7 V at rest on the default slide and with the screw ten times softer, none of the moves
 done; 0.01-0.09 V and done without the aid).
 
-No rclpy: file input (identify's output folder) and plots are here, ROS is in tools/autotune.py.
+No rclpy: file input (identify's output folder) is here; the runs on a live axis are in
+procedures/autotune.py, the figures in plotting/open_loop.py and plotting/steps.py, the command
+in tools/autotune.py.
 """
 from __future__ import annotations
 
@@ -76,6 +78,7 @@ import pathlib
 from dataclasses import dataclass, field
 
 import numpy as np
+import yaml
 
 from motion_ctrl.analysis import identify as idf
 from motion_ctrl.analysis import rest
@@ -83,9 +86,9 @@ from motion_ctrl.core import notch as nt
 from motion_ctrl.core.registers import yaml_float
 
 __all__ = ['Preset', 'PRESETS', 'AxisResponse', 'Evaluation', 'NotchChoice', 'Proposal',
-           'FEEDBACKS', 'LATENCY_TICKS', 'evaluate', 'propose', 'read_identify',
-           'write_response', 'params_yaml', 'format_proposal', 'plot_open_loop',
-           'MoveResult', 'move_result', 'format_verification', 'plot_steps']
+           'FEEDBACKS', 'LATENCY_TICKS', 'evaluate', 'open_loops', 'propose', 'read_identify',
+           'write_response', 'params_yaml', 'format_proposal',
+           'MoveResult', 'move_result', 'format_verification']
 
 LATENCY_TICKS = 1          # encoder sample -> command over DDS (as tools/tuning, doc/identify.md)
 FEEDBACKS = ('dual', 'motor')
@@ -332,6 +335,22 @@ def evaluate(axis: AxisResponse, registers: dict, feedback: str = 'dual', *,
                       float(min(pms)), cross, _closed_bandwidth(f, g, gm_, gl_, feedback, T))
 
 
+def open_loops(axis: AxisResponse, ev: Evaluation) -> tuple:
+    """The open loop L of an evaluation's registers on the axis, as autotune's open-loop plot
+    draws it: ((freq, L) of the model over axis.grid(), (freq, L) of the measured points or
+    None without them)."""
+    g = _check_gains(ev.registers)
+    T = axis.sample_period
+    f = axis.grid()
+    gm_, gl_ = axis.plant(f)
+    model = (f, _loop(f, g, gm_, gl_, ev.feedback, T))
+    meas = axis.measured()
+    if meas is None:
+        return model, None
+    fm, mm, ml = meas
+    return model, (fm, _loop(fm, g, mm, ml, ev.feedback, T))
+
+
 @dataclass(frozen=True)
 class NotchChoice:
     """A notch as designed (core.notch.design, prewarp): zeros and poles [Hz] with damping."""
@@ -411,7 +430,11 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
 
     notch: None = only where the resonance limits the loop (the default), False = never, True =
     always. Raises ValueError on bad input, and when no gains meet the preset's margins (the
-    measured loop is too poor: more coherent points, a lower latency, or a softer preset)."""
+    measured loop is too poor: more coherent points, a lower latency, or a softer preset).
+
+    The steps (module docstring): the search without a notch, the shapes the resonance holds
+    back (step 1), the search with the notches of the family (step 2), the notch decision
+    (step 3), the result (rounded gains, feedforward, evaluated on the full grid)."""
     if isinstance(preset, str):
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
@@ -419,52 +442,104 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
     feedback = _check_feedback(feedback)
     if notch not in (None, True, False):
         raise ValueError(f'notch must be None, True or False, got {notch!r}')
-    T = axis.sample_period
-    J = axis.inertia
-    cap = preset.bandwidth_fraction * axis.model.antiresonance_hz
-    f = axis.grid(300, 81)             # the search's grid; the result is evaluated on the full one
-    gm_, gl_ = axis.plant(f)
-    meas = axis.measured()
-    gm_target = preset.gain_margin_db + SEARCH_PAD_DB
-    pm_target = preset.phase_margin_deg + SEARCH_PAD_DEG
-    top = 2 * math.pi * 0.6 * axis.model.antiresonance_hz     # the same search for every preset
+    search = _Search(axis, preset, feedback)
+    plain_shapes = search.per_shape({}, SHAPES)
+    plain = _best(plain_shapes)
+    held = search.held_back(plain_shapes)
+    candidates = _notch_candidates(axis)
+    decision = _NotchDecision(notch, plain, held,
+                              _notch_search(search, candidates, notch, plain, held),
+                              len(candidates))
+    notes = []
+    if plain is not None:
+        bound = search.binding(plain_shapes[plain[2]][2])
+        fr, fa = axis.model.resonance_hz, axis.model.antiresonance_hz
+        notes.append(f'without a notch: bounded by {_said(bound)} (PID zeros at crossover/'
+                     f'{plain[2][0]:g}, /{plain[2][0] * plain[2][1]:g}; resonance {fr:.1f} Hz, '
+                     f'anti-resonance {fa:.1f} Hz)')
+    notes += decision.notes(axis)
+    chosen, choice = (decision.with_notch if decision.keep else (plain, None))  # type: ignore[misc]
+    if chosen is None:
+        raise ValueError(f'no gains meet {preset.name} ({preset.gain_margin_db:g} dB, '
+                         f'{preset.phase_margin_deg:g}°) on this axis with feedback {feedback}'
+                         + ('' if notch is not False else ' without a notch'))
+    return _proposal(axis, search, chosen, choice, notes,
+                     bool(held) or plain is None)
 
-    def feasible(regs) -> tuple[bool, float | None]:
-        mm = idf.margins(f, _loop(f, regs, gm_, gl_, feedback, T))
+
+class _Search:
+    """The search of propose for one preset on one axis: the margins a set of registers gives
+    on the search's grid (300 points, 81 across each resonance) and on the measured points, and
+    each PID shape's largest crossover that meets the preset's targets (with SEARCH_PAD_DB and
+    SEARCH_PAD_DEG) and its crossover limit, by bisection."""
+
+    def __init__(self, axis: AxisResponse, preset: Preset, feedback: str):
+        self.preset, self.feedback = preset, feedback
+        self.T = axis.sample_period
+        self.J = axis.inertia
+        self.cap = preset.bandwidth_fraction * axis.model.antiresonance_hz
+        self.f = axis.grid(300, 81)     # the search's grid; the result is evaluated on the full one
+        self.gm_, self.gl_ = axis.plant(self.f)
+        self.meas = axis.measured()
+        self.gm_target = preset.gain_margin_db + SEARCH_PAD_DB
+        self.pm_target = preset.phase_margin_deg + SEARCH_PAD_DEG
+        self.top = 2 * math.pi * 0.6 * axis.model.antiresonance_hz   # the same for every preset
+        #: "at the resonance" (step 1 of the rule)
+        self.band = (RESONANCE_BAND[0] * axis.model.antiresonance_hz,
+                     RESONANCE_BAND[1] * axis.model.resonance_hz)
+
+    def model_margins(self, regs) -> idf.Margins:
+        return idf.margins(self.f, _loop(self.f, regs, self.gm_, self.gl_, self.feedback, self.T))
+
+    def measured_margins(self, regs) -> idf.Margins | None:
+        if self.meas is None:
+            return None
+        fm, m_, l_ = self.meas
+        return idf.margins(fm, _loop(fm, regs, m_, l_, self.feedback, self.T))
+
+    def feasible(self, regs) -> tuple[bool, float | None]:
+        """Whether `regs` meet the targets on the model and the measured points, and the first
+        gain crossover on the model (None: none)."""
+        mm = self.model_margins(regs)
         if not mm.gain_crossovers_hz:
             return False, None
         cross = min(mm.gain_crossovers_hz)
-        if mm.gain_margin_db < gm_target or mm.phase_margin_deg < pm_target or cross > cap:
+        if mm.gain_margin_db < self.gm_target or mm.phase_margin_deg < self.pm_target \
+                or cross > self.cap:
             return False, cross
-        if meas is not None:
-            fm, m_, l_ = meas
-            me = idf.margins(fm, _loop(fm, regs, m_, l_, feedback, T))
-            if me.gain_margin_db < gm_target or me.phase_margin_deg < pm_target:
+        me = self.measured_margins(regs)
+        if me is not None:
+            if me.gain_margin_db < self.gm_target or me.phase_margin_deg < self.pm_target:
                 return False, cross
         return True, cross
 
-    def binding(regs) -> list:
+    def binding(self, regs) -> list:
         """What the loop misses just above the largest feasible crossover (the bisection's
         infeasible end): [(what, frequency [Hz])]."""
         out = []
-        loops = [('', idf.margins(f, _loop(f, regs, gm_, gl_, feedback, T)))]
-        if meas is not None:
-            fm, m_, l_ = meas
-            loops.append((' (measured points)', idf.margins(fm, _loop(fm, regs, m_, l_,
-                                                                     feedback, T))))
+        loops = [('', self.model_margins(regs))]
+        measured = self.measured_margins(regs)
+        if measured is not None:
+            loops.append((' (measured points)', measured))
         for where, mm in loops:
             if not mm.gain_crossovers_hz:
                 continue
-            if mm.phase_margin_deg < pm_target:
+            if mm.phase_margin_deg < self.pm_target:
                 out.append(('phase margin' + where, mm.crossover_hz))
-            if mm.gain_margin_db < gm_target:
+            if mm.gain_margin_db < self.gm_target:
                 out.append(('gain margin' + where, mm.phase_crossover_hz))
         cross = min(loops[0][1].gain_crossovers_hz or [0.0])
-        if cross > cap:
-            out.append(("the preset's crossover limit", cap))
+        if cross > self.cap:
+            out.append(("the preset's crossover limit", self.cap))
         return out
 
-    def per_shape(nregs, shapes, beat=0.0) -> dict:
+    def held_back(self, shapes: dict) -> dict:
+        """Step 1 of the rule: {shape: [(what, frequency)]} of the shapes of per_shape({}, ...)
+        whose largest crossover stops at a margin missed at the resonance."""
+        held = {s: _at_resonance(self.binding(v[2]), self.band) for s, v in shapes.items()}
+        return {s: w for s, w in held.items() if w}
+
+    def per_shape(self, nregs, shapes, beat=0.0) -> dict:
         """{shape: ((ki, bandwidth), registers, registers just above)}: each shape's largest
         feasible crossover (bisection), with the registers of its infeasible end. With `beat`
         > 0 only shapes that can give more ki: the bisection starts at the crossover that gives
@@ -472,138 +547,168 @@ def propose(axis: AxisResponse, preset: str | Preset = 'stiff', feedback: str = 
         instead of a bisection: most notch candidates end there)."""
         out = {}
         for a, b in shapes:
-            regs = lambda wc: _shape_gains(J, wc, a, b) | nregs   # noqa: E731
-            if beat > 0.0:
-                need = (beat * a * a * b / J) ** (1.0 / 3.0)
-                if need >= top or not feasible(regs(need))[0]:
-                    continue
-                lo = math.log(need)
-            else:
-                # The bisection needs a feasible low end. The lowest crossover is not always
-                # one: a viscous pole fitted above it (the band starts at 20 Hz, so the fit
-                # barely sees it) can keep the loop off 0 dB on the grid there.
-                low = next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
-                            if feasible(regs(2 * math.pi * f0))[0]), None)
-                if low is None:
-                    continue
-                lo = low
-            hi = math.log(top)
+            regs = lambda wc: _shape_gains(self.J, wc, a, b) | nregs   # noqa: E731
+            lo = self._low_end(regs, a, b, beat)
+            if lo is None:
+                continue
+            hi = math.log(self.top)
             for _ in range(11):
                 mid = 0.5 * (lo + hi)
-                if feasible(regs(math.exp(mid)))[0]:
+                if self.feasible(regs(math.exp(mid)))[0]:
                     lo = mid
                 else:
                     hi = mid
             r = regs(math.exp(lo))
-            bw = _closed_bandwidth(f, r, gm_, gl_, feedback, T)
+            bw = _closed_bandwidth(self.f, r, self.gm_, self.gl_, self.feedback, self.T)
             out[(a, b)] = ((r['ki'], round(bw, 1)), r, regs(math.exp(hi)))
         return out
 
-    def best(shapes: dict) -> tuple | None:
-        """(key, registers, shape) of the largest ki, then bandwidth."""
-        if not shapes:
+    def _low_end(self, regs, a, b, beat) -> float | None:
+        """The bisection's feasible low end, log ωc, for shape (a, b); None: the shape is left
+        out."""
+        if beat > 0.0:
+            need = (beat * a * a * b / self.J) ** (1.0 / 3.0)
+            if need >= self.top or not self.feasible(regs(need))[0]:
+                return None
+            return math.log(need)
+        # The bisection needs a feasible low end. The lowest crossover is not always one: a
+        # viscous pole fitted above it (the band starts at 20 Hz, so the fit barely sees it) can
+        # keep the loop off 0 dB on the grid there.
+        return next((math.log(2 * math.pi * f0) for f0 in LOW_CROSSOVERS_HZ
+                     if self.feasible(regs(2 * math.pi * f0))[0]), None)
+
+
+def _best(shapes: dict) -> tuple | None:
+    """(key, registers, shape) of the largest ki, then bandwidth."""
+    if not shapes:
+        return None
+    s = max(shapes, key=lambda k: shapes[k][0])
+    return shapes[s][0], shapes[s][1], s
+
+
+def _at_resonance(bound, band) -> list:
+    return [(w, fq) for w, fq in bound if fq is not None and band[0] <= fq <= band[1]
+            and 'crossover limit' not in w]
+
+
+def _said(bound) -> str:
+    return ', '.join(f'{w} at {fq:.1f} Hz' for w, fq in bound if fq is not None) \
+        or 'nothing on the grid'
+
+
+@dataclass
+class _NotchDecision:
+    """Step 3 of the rule: `plain` the best gains without a notch ((ki, bandwidth), registers,
+    shape; None: no gains meet the preset without one), `held` the shapes the resonance holds
+    back (step 1), `with_notch` the best gains with a notch of the family ((...), NotchChoice;
+    None: none better), of `candidates` notches; `notch` as propose was asked."""
+    notch: bool | None
+    plain: tuple | None
+    held: dict
+    with_notch: tuple | None
+    candidates: int
+
+    @property
+    def gain(self) -> float | None:
+        """ki with the notch over ki without."""
+        if self.with_notch is None or self.plain is None:
             return None
-        s = max(shapes, key=lambda k: shapes[k][0])
-        return shapes[s][0], shapes[s][1], s
+        return self.with_notch[0][0][0] / self.plain[0][0]
 
-    def at_resonance(bound) -> list:
-        return [(w, fq) for w, fq in bound if fq is not None and band[0] <= fq <= band[1]
-                and 'crossover limit' not in w]
+    @property
+    def deserved(self) -> bool:
+        """The rule proposes the notch: no gains without one, or a shape the resonance holds
+        back gets NOTCH_KEEP_GAIN × the ki with it."""
+        gain = self.gain
+        return self.plain is None or (self.with_notch is not None
+                                      and self.with_notch[0][2] in self.held
+                                      and gain is not None and gain >= NOTCH_KEEP_GAIN)
 
-    def said(bound) -> str:
-        return ', '.join(f'{w} at {fq:.1f} Hz' for w, fq in bound if fq is not None) \
-            or 'nothing on the grid'
+    @property
+    def keep(self) -> bool:
+        return self.with_notch is not None and (self.notch is True or self.deserved)
 
-    fr, fa = axis.model.resonance_hz, axis.model.antiresonance_hz
-    band = (RESONANCE_BAND[0] * fa, RESONANCE_BAND[1] * fr)
-    plain_shapes = per_shape({}, SHAPES)
-    plain = best(plain_shapes)
-    # The rule (module docstring): a notch where the resonance limits the loop. Without a notch,
-    # a PID shape is held back by the resonance when the margin it misses just above its
-    # largest crossover is missed at the resonance (not the phase margin at its crossover, nor
-    # the preset's crossover limit: no notch moves those). Only such shapes are tried with the
-    # notches of the family, and the best is proposed if it gives NOTCH_KEEP_GAIN times the ki
-    # of the best gains without one (the preset's objective; a notch costs phase below its
-    # centre and must pay for it). Where no gains meet the preset without one, the best notch.
-    held = {s: at_resonance(binding(v[2])) for s, v in plain_shapes.items()}
-    held = {s: w for s, w in held.items() if w}
-    search = SHAPES if notch is True or plain is None else tuple(s for s in SHAPES if s in held)
+    def notes(self, axis: AxisResponse) -> list:
+        """Why there is a notch or none, as the proposal's notes say it."""
+        fr, T = axis.model.resonance_hz, axis.sample_period
+        plain, with_notch, held, gain = self.plain, self.with_notch, self.held, self.gain
+        desc, nki, pki = '', 0.0, (plain[0][0] if plain is not None else 0.0)
+        if with_notch is not None:
+            c, ws, nki = with_notch[1], with_notch[0][2], with_notch[0][0][0]
+            desc = (f'{c.f_zero:.1f} Hz, ζ {c.zeta_zero:g} / {c.zeta_pole:g}, '
+                    f'{-nt.gain_db(tuple(c.registers(T).values()), fr, T):.1f} dB down at the '
+                    f'resonance; PID zeros at crossover/{ws[0]:g}, /{ws[0] * ws[1]:g}')
+        if self.keep and plain is None:
+            return [f'notch ({desc}): no gains meet the margins without one']
+        if self.keep and not self.deserved:
+            return [f'notch ({desc}): asked for (--notch on); ki {nki:.4g} with '
+                    f'it, {pki:.4g} without (the rule would not propose it)']
+        if self.keep:
+            return [f'notch ({desc}): ki {nki:.4g} with it, '
+                    f'{pki:.4g} without ({gain:.2f} ×); without it these gains stop '
+                    f'at {_said(held[ws])}: the resonance limits the loop']
+        if self.notch is not None or plain is None:
+            return []
+        if not held:
+            return [f'no notch: the resonance does not limit the loop (none of the '
+                    f'{len(SHAPES)} PID shapes stops at a margin missed at the resonance '
+                    'without one)']
+        if with_notch is None:
+            return [f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
+                    f'resonance without one, but none of the {self.candidates} notches of '
+                    f'the family gives them {NOTCH_KEEP_GAIN:g} × the ki without one '
+                    f'({pki:.4g}): their phase lag at the crossover costs more than their '
+                    'cut at the resonance buys']
+        return [f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
+                f'resonance without one, but the best notch of the family ({desc}) '
+                f'gives ki {nki:.4g}, without {pki:.4g} '
+                f'({gain:.2f} ×, under {NOTCH_KEEP_GAIN:g} ×): its phase lag at the '
+                'crossover costs more than its cut at the resonance buys']
+
+
+def _notch_search(search: _Search, candidates: list, notch: bool | None, plain: tuple | None,
+                  held: dict) -> tuple | None:
+    """Step 2 of the rule: each notch of the family with the shapes the resonance holds back
+    (every shape where a notch is asked for or no gains meet the preset without one). By
+    default only a notch that pays is of interest: the search looks for ki above
+    NOTCH_KEEP_GAIN × the best without one, and then above the best notch so far. Returns
+    (best gains, NotchChoice) or None."""
+    shapes = SHAPES if notch is True or plain is None else tuple(s for s in SHAPES if s in held)
     with_notch = None
-    # by default only a notch that pays is of interest: the search looks for ki above
-    # NOTCH_KEEP_GAIN × the best without one, and then above the best notch so far
     floor = NOTCH_KEEP_GAIN * plain[0][0] if notch is None and plain is not None else 0.0
-    candidates = _notch_candidates(axis)
-    if notch is not False and search:
+    if notch is not False and shapes:
         for c in candidates:
             beat = max(floor, with_notch[0][0][0] if with_notch is not None else 0.0)
-            got = best(per_shape(c.registers(T), search, beat))
+            got = _best(search.per_shape(c.registers(search.T), shapes, beat))
             if got is not None and (with_notch is None or got[0] > with_notch[0][0]):
                 with_notch = (got, c)
-    notes = []
-    if plain is not None:
-        bound = binding(plain_shapes[plain[2]][2])
-        notes.append(f'without a notch: bounded by {said(bound)} (PID zeros at crossover/'
-                     f'{plain[2][0]:g}, /{plain[2][0] * plain[2][1]:g}; resonance {fr:.1f} Hz, '
-                     f'anti-resonance {fa:.1f} Hz)')
-    gain = None if with_notch is None or plain is None else with_notch[0][0][0] / plain[0][0]
-    deserved = plain is None or (with_notch is not None and with_notch[0][2] in held
-                                 and gain is not None and gain >= NOTCH_KEEP_GAIN)
-    keep = with_notch is not None and (notch is True or deserved)
-    chosen, choice = (with_notch if keep else (plain, None))     # type: ignore[misc]
-    desc, nki, pki = '', 0.0, (plain[0][0] if plain is not None else 0.0)
-    if with_notch is not None:
-        c, ws, nki = with_notch[1], with_notch[0][2], with_notch[0][0][0]
-        desc = (f'{c.f_zero:.1f} Hz, ζ {c.zeta_zero:g} / {c.zeta_pole:g}, '
-                f'{-nt.gain_db(tuple(c.registers(T).values()), fr, T):.1f} dB down at the '
-                f'resonance; PID zeros at crossover/{ws[0]:g}, /{ws[0] * ws[1]:g}')
-    if keep and plain is None:
-        notes.append(f'notch ({desc}): no gains meet the margins without one')
-    elif keep and not deserved:
-        notes.append(f'notch ({desc}): asked for (--notch on); ki {nki:.4g} with '
-                     f'it, {pki:.4g} without (the rule would not propose it)')
-    elif keep:
-        notes.append(f'notch ({desc}): ki {nki:.4g} with it, '
-                     f'{pki:.4g} without ({gain:.2f} ×); without it these gains stop '
-                     f'at {said(held[ws])}: the resonance limits the loop')
-    elif notch is None and plain is not None:
-        if not held:
-            notes.append(f'no notch: the resonance does not limit the loop (none of the '
-                         f'{len(SHAPES)} PID shapes stops at a margin missed at the resonance '
-                         'without one)')
-        elif with_notch is None:
-            notes.append(f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
-                         f'resonance without one, but none of the {len(candidates)} notches of '
-                         f'the family gives them {NOTCH_KEEP_GAIN:g} × the ki without one '
-                         f'({pki:.4g}): their phase lag at the crossover costs more than their '
-                         'cut at the resonance buys')
-        else:
-            notes.append(f'no notch: {len(held)} of {len(SHAPES)} PID shapes stop at the '
-                         f'resonance without one, but the best notch of the family ({desc}) '
-                         f'gives ki {nki:.4g}, without {pki:.4g} '
-                         f'({gain:.2f} ×, under {NOTCH_KEEP_GAIN:g} ×): its phase lag at the '
-                         'crossover costs more than its cut at the resonance buys')
-    if chosen is None:
-        raise ValueError(f'no gains meet {preset.name} ({preset.gain_margin_db:g} dB, '
-                         f'{preset.phase_margin_deg:g}°) on this axis with feedback {feedback}'
-                         + ('' if notch is not False else ' without a notch'))
+    return with_notch
+
+
+def _proposal(axis: AxisResponse, search: _Search, chosen: tuple, choice: NotchChoice | None,
+              notes: list, resonance_limits: bool) -> Proposal:
+    """The result: the chosen gains rounded to 4 digits, the notch's coefficients as designed,
+    evaluated on the full grid; then the feedforward (module docstring: kvff = kd + viscous,
+    kaff = J, friction_ff = Coulomb, friction_ff_at_rest = AT_REST_SHARE of it with the dual
+    loop)."""
+    feedback = search.feedback
     _, regs, shape = chosen
     regs = {k: _round(v) for k, v in regs.items() if k in ('kp', 'ki', 'kd')} | \
         {k: float(v) for k, v in regs.items() if k.startswith('notch_')}
     regs |= {k: 0.0 for k in NOTCH_REGISTERS if k not in regs}
     ev = evaluate(axis, regs, feedback)
     cross = ev.crossover_hz or 0.0
-    resonance_limits = bool(held) or plain is None
-    limit = ("the preset's crossover limit" if cross >= 0.97 * cap else 'the margins')
+    limit = ("the preset's crossover limit" if cross >= 0.97 * search.cap else 'the margins')
     kd = regs['kd']
     friction = max(axis.coulomb, 0.0)
     regs = dict(kp=regs['kp'], ki=regs['ki'], kd=kd,
-                kvff=_round(kd + max(axis.viscous, 0.0)), kaff=_round(J),
+                kvff=_round(kd + max(axis.viscous, 0.0)), kaff=_round(search.J),
                 friction_ff=_round(friction),
                 friction_ff_at_rest=_round(AT_REST_SHARE * friction if feedback == 'dual'
                                            else 0.0)) \
         | {k: regs[k] for k in NOTCH_REGISTERS}
     ev.registers = dict(regs)
-    return Proposal(preset, feedback, regs, choice, ev, cap, limit, shape, notes,
+    return Proposal(search.preset, feedback, regs, choice, ev, search.cap, limit, shape, notes,
                     resonance_limits)
 
 
@@ -626,7 +731,6 @@ def write_response(path, motor: idf.FrequencyResponse, load: idf.FrequencyRespon
 def read_identify(folder) -> AxisResponse:
     """An identify output folder (identify.yaml, and response.csv when it is there) as an
     AxisResponse. Raises ValueError naming what is missing or wrong."""
-    import yaml
     d = pathlib.Path(folder)
     if d.is_file():
         d = d.parent
@@ -722,75 +826,6 @@ def format_proposal(p: Proposal, before: Evaluation | None = None) -> str:
     return '\n'.join(lines)
 
 
-def _wrapped(deg):
-    """Phase in [-360°, 0): −180° (the stability point) in the middle of the plot."""
-    return np.mod(deg, 360.0) - 360.0
-
-
-def plot_open_loop(path, axis: AxisResponse, evaluations: list, *, title: str = '') -> None:
-    """Bode plot of the open loop L of each (label, Evaluation): the model as a line, the
-    measured points as markers, gain and phase margins marked (model) at their crossovers."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, (ax_m, ax_p) = plt.subplots(2, 1, figsize=(9, 7.5), sharex=True)
-    f = axis.grid()
-    gm_, gl_ = axis.plant(f)
-    meas = axis.measured()
-    T = axis.sample_period
-    for i, (label, ev) in enumerate(evaluations):
-        c = f'C{i}'
-        g = _check_gains(ev.registers)
-        L = _loop(f, g, gm_, gl_, ev.feedback, T)
-        ph = _wrapped(np.degrees(np.angle(L)))
-        ax_m.semilogx(f, 20 * np.log10(np.abs(L)), '-', color=c, lw=1.2,
-                      label=f'{label}: GM {ev.gain_margin_db:.1f} dB, PM '
-                            f'{ev.phase_margin_deg:.1f}°, crossover '
-                            f'{ev.crossover_hz or float("nan"):.1f} Hz')
-        gap = np.abs(np.diff(ph)) > 180.0             # a wrap, not a line across the plot
-        ax_p.semilogx(f, np.where(np.append(gap, False), np.nan, ph), '-', color=c, lw=1.2)
-        if meas is not None:
-            fm, mm, ml = meas
-            Lm = _loop(fm, g, mm, ml, ev.feedback, T)
-            phm = _wrapped(np.degrees(np.angle(Lm)))
-            ax_m.semilogx(fm, 20 * np.log10(np.abs(Lm)), 'o', ms=3.5, mfc='none', mec=c)
-            ax_p.semilogx(fm, phm, 'o', ms=3.5, mfc='none', mec=c)
-        m = ev.model
-        if m.crossover_hz is not None:
-            fc = m.crossover_hz
-            pc = m.phase_margin_deg - 180.0
-            ax_p.annotate('', xy=(fc, pc), xytext=(fc, pc - m.phase_margin_deg),
-                          arrowprops=dict(arrowstyle='<->', color=c, lw=1.5))
-            ax_p.text(fc * 1.04, pc - m.phase_margin_deg / 2, f'PM {m.phase_margin_deg:.1f}°',
-                      color=c, fontsize=8)
-            ax_m.plot([fc], [0.0], 'x', color=c, ms=8)
-        if m.phase_crossover_hz is not None:
-            fp = m.phase_crossover_hz
-            lm = -m.gain_margin_db
-            ax_m.annotate('', xy=(fp, 0.0), xytext=(fp, lm),
-                          arrowprops=dict(arrowstyle='<->', color=c, lw=1.5))
-            ax_m.text(fp * 1.04, lm / 2, f'GM {m.gain_margin_db:.1f} dB', color=c, fontsize=8)
-    for a in (ax_m, ax_p):
-        a.axvline(axis.model.resonance_hz, color='k', ls=':', lw=0.8)
-        a.axvline(axis.model.antiresonance_hz, color='grey', ls=':', lw=0.8)
-        a.grid(True, which='both', alpha=0.3)
-    ax_m.axhline(0.0, color='k', lw=0.8)
-    ax_p.axhline(-180.0, color='k', lw=0.8)
-    ax_m.set_ylim(-40, 60)
-    ax_m.set_ylabel('|L| [dB]')
-    ax_p.set_ylabel('phase of L [°]')
-    ax_p.set_ylim(-360, 0)
-    ax_p.set_yticks(list(range(-360, 1, 45)))
-    ax_p.set_xlabel('frequency [Hz]')
-    ax_m.set_xlim(1.0, axis.nyquist)
-    ax_m.legend(fontsize=8, loc='lower left')
-    ax_m.set_title(title or 'open loop (line: model, markers: measured; one tick of latency, '
-                   'notch included)', fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 # ================================================================================================
 # verification: the moves, measured on the controller's own joint_states
 
@@ -878,57 +913,3 @@ def format_verification(runs: dict, evaluations: dict) -> str:
                      f'{ev.gain_margin_db:.1f} | {ev.phase_margin_deg:.1f} | {cross} | '
                      f'{ev.bandwidth_hz:.1f} |')
     return '\n'.join(lines)
-
-
-def plot_steps(path, runs: dict, *, title: str = '') -> None:
-    """Per move (a column each), every set of gains (before / after) in it: the slide error
-    [counts] in the first 0.8 s after the end of the profile (top), and over the whole record
-    with the rest watched after MOTION_DONE (middle), the output [V] over it (bottom);
-    MOTION_DONE marked, a limit cycle named in the legend."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    names = list(runs)
-    labels = list(dict.fromkeys(m.label for v in runs.values() for m in v))  # one panel each
-    n = len(labels)
-    fig, axes = plt.subplots(3, n, figsize=(4.2 * n, 9.5), sharey='row', squeeze=False)
-    for j, label in enumerate(labels):
-        span = max(float(m.t[-1]) for v in runs.values() for m in v if m.label == label)
-        top, mid, bot = axes[0][j], axes[1][j], axes[2][j]
-        for i, name in enumerate(names):
-            m = next((x for x in runs[name] if x.label == label), None)
-            if m is None:
-                continue
-            c = f'C{i}'
-            keep = (m.t >= -0.1) & (m.t <= 0.8)
-            settle = f'{m.settle_ms:.0f} ms' if math.isfinite(m.settle_ms) else 'none'
-            top.plot(m.t[keep] * 1e3, m.error[keep], '-', color=c, lw=1.1,
-                     label=f'{name}: settle {settle}, final {m.final_error:+.2f}')
-            mid.plot(m.t, m.error, '-', color=c, lw=1.0, label=f'{name}: {m.rest.short()}')
-            if m.output.size:
-                bot.plot(m.t, m.output, '-', color=c, lw=0.8)
-            if math.isfinite(m.settle_ms):
-                top.axvline(m.settle_ms, color=c, ls=':', lw=1)
-                for a in (mid, bot):
-                    a.axvline(m.settle_ms / 1e3, color=c, ls=':', lw=1)
-        for a in (top, mid):
-            a.axhspan(-1, 1, color='g', alpha=0.1)
-            a.grid(True, alpha=0.3)
-        bot.grid(True, alpha=0.3)
-        top.set_title(label, fontsize=9)
-        top.set_xlabel('time from the end of the profile [ms]')
-        top.set_ylim(-25, 25)
-        top.legend(fontsize=7, loc='lower right')
-        mid.set_ylim(-5, 5)
-        mid.set_xlim(-0.1, span)
-        mid.legend(fontsize=7, loc='upper right')
-        bot.set_xlim(-0.1, span)
-        bot.set_xlabel('time from the end of the profile [s]')
-    axes[0][0].set_ylabel('slide error (joint_states) [linear counts]')
-    axes[1][0].set_ylabel('slide error, whole record [counts]')
-    axes[2][0].set_ylabel('output [V]')
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

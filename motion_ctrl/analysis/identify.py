@@ -44,12 +44,14 @@ as library functions on sampled records (numpy arrays, one sample per servo tick
    :func:`friction` (Coulomb and viscous friction from constant-velocity runs both ways),
    :func:`physical_units` (the fit in kg, N/V, N/m from one known mass or force constant),
    :func:`doubts` (why a fit would not describe the axis: too little of the band coherent, no
-   anti-resonance resolved) and :func:`plot_bode`.
+   anti-resonance resolved) and :func:`format_report` (the table it prints). Its Bode plot is
+   motion_ctrl.plotting.bode.
 
 Units follow the controller's registers: positions in metres (load-equivalent on the motor
 encoder, as `Axis` converts counts), volts, seconds. No rclpy: the excitation runs inside the
-servo tick (core.gather), and the `identify` and `autotune` tools (motion_ctrl.tools) fetch
-its records over ROS and hand them to these functions.
+servo tick (core.gather), and the identify procedure (motion_ctrl.procedures.identify, run by
+the `identify` and `autotune` tools) fetches its records over ROS and hands them to these
+functions.
 """
 from __future__ import annotations
 
@@ -57,6 +59,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import optimize
 from scipy import signal as sps
 
@@ -69,7 +72,7 @@ __all__ = [
     'Margins', 'margins', 'pid_response', 'pid_open_loop',
     'GAIN_MARGIN_DB', 'PHASE_MARGIN_DEG',
     'merge', 'Friction', 'friction', 'Breakaway', 'breakaway', 'STICK_S', 'physical_units',
-    'plot_bode', 'doubts',
+    'doubts', 'format_report',
     'MIN_COHERENT_FRACTION', 'MIN_INERTIA_RATIO',
 ]
 
@@ -411,6 +414,19 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
     if antiresonance is not None:
         held = (positive('antiresonance frequency', antiresonance[0]),
                 positive('antiresonance damping', antiresonance[1]))
+    data = _fit_points(motor, load, band, min_coherence, held, log_weight)
+    T = 1.0 / motor.sample_rate if sampled else None
+    if not sampled and delay_ticks:
+        raise ValueError('delay_ticks applies to a sampled model')
+    problem = _TwoMassProblem(data, load is not None, held, T, motor.sample_rate / 2.0,
+                              delay_ticks)
+    return _read_fit(problem, problem.solve(), force_per_volt, fpv)
+
+
+def _fit_points(motor, load, band, min_coherence, held, log_weight) -> list:
+    """[(output, freq, response, weight)] of the points fit_two_mass uses, motor first: in
+    `band` with coherence >= `min_coherence` (the motor's away from a held anti-resonance), at
+    least 8 of each; weights √(γ²/(1 − γ²)), with `log_weight` times √(Δf/f), rms 1."""
     sets = [('motor', motor)] + ([('load', load)] if load is not None else [])
     data = []
     for name, fr in sets:
@@ -431,79 +447,98 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
             w = w * np.sqrt(np.abs(df) / f)
         w = w / np.sqrt(np.mean(w ** 2))
         data.append((name, f, fr.response[m], w))
-    T = 1.0 / motor.sample_rate if sampled else None
-    nyq = motor.sample_rate / 2.0
-    if not sampled and delay_ticks:
-        raise ValueError('delay_ticks applies to a sampled model')
+    return data
 
-    _, fm, gm, _ = data[0]
-    K0, sig0, fr0, fa0 = _initial_guess(fm, gm)
-    if not fr0 > fa0:
-        fa0 = fr0 / 1.05
 
-    free = np.ones(6 + (load is not None), dtype=bool)
-    full = np.zeros(free.size)
-    if held is not None:                     # fa and ζa held: x has the others only
-        free[[2, 5]] = False
-        full[2], full[5] = math.log(held[0]), math.log(held[1])
+class _TwoMassProblem:
+    """fit_two_mass's least-squares problem (scipy.optimize.least_squares, trf): the parameters
+    as logs, x = (K, σ, fa, ρ = (fr/fa)² − 1, ζr, ζa and, with the load, τ), fa and ζa left out
+    of x when held; residuals the weighted log of model / measured (real: magnitude, imaginary:
+    phase) of every point of `data` (_fit_points)."""
 
-    def unpack(x):
-        v = full.copy()
-        v[free] = x
+    def __init__(self, data, with_load: bool, held, T, nyq: float, delay_ticks):
+        self.data, self.with_load, self.held = data, with_load, held
+        self.T, self.nyq, self.delay_ticks = T, nyq, delay_ticks
+        self.free = np.ones(6 + with_load, dtype=bool)
+        self.full = np.zeros(self.free.size)
+        if held is not None:                     # fa and ζa held: x has the others only
+            self.free[[2, 5]] = False
+            self.full[2], self.full[5] = math.log(held[0]), math.log(held[1])
+        #: the frequencies [Hz] of the points used, lowest and highest
+        self.band = (min(d[1][0] for d in data), max(d[1][-1] for d in data))
+
+    def unpack(self, x) -> TwoMassModel:
+        v = self.full.copy()
+        v[self.free] = x
         K, sig, fa, rho, zr, za = np.exp(v[:6])
         fr = fa * math.sqrt(1.0 + rho)
-        tau = math.exp(v[6]) if load is not None else 0.0
+        tau = math.exp(v[6]) if self.with_load else 0.0
         return TwoMassModel(K, sig, fr, zr, fa, za, tau)
 
-    def residuals(x):
-        mdl = unpack(x)
-        if sampled and mdl.resonance_hz >= nyq:
-            return np.full(sum(2 * d[1].size for d in data), 1e3)
+    def errors(self, mdl: TwoMassModel) -> list:
+        """log(model / measured) at each output's points."""
+        return [np.log(mdl.response(f, output=name, sample_period=self.T,
+                                    delay_ticks=self.delay_ticks) / g)
+                for name, f, g, _ in self.data]
+
+    def residuals(self, x):
+        mdl = self.unpack(x)
+        if self.T is not None and mdl.resonance_hz >= self.nyq:
+            return np.full(sum(2 * d[1].size for d in self.data), 1e3)
         out = []
-        for name, f, g, w in data:
-            h = mdl.response(f, output=name, sample_period=T, delay_ticks=delay_ticks)
-            e = np.log(h / g)
+        for (_, _, _, w), e in zip(self.data, self.errors(mdl)):
             out.append(w * e.real)
             out.append(w * e.imag)
         return np.concatenate(out)
 
-    lo_f = min(d[1][0] for d in data)
-    hi_f = max(d[1][-1] for d in data)
-    lb = [math.log(K0 / 100), math.log(1e-3), math.log(lo_f / 2), math.log(1e-4),
-          math.log(1e-4), math.log(1e-4)]
-    ub = [math.log(K0 * 100), math.log(TWO_PI * hi_f), math.log(nyq), math.log(1e4),
-          math.log(0.95), math.log(0.95)]
-    if held is not None:
-        fa0 = held[0]
-        if not fr0 > fa0 * 1.001:
-            fr0 = fa0 * 1.05
-    best = None
-    for z0 in (0.01, 0.05, 0.2):
-        x0 = [math.log(K0), math.log(min(max(sig0, 2e-3), TWO_PI * hi_f / 2)), math.log(fa0),
-              math.log((fr0 / fa0) ** 2 - 1.0), math.log(z0), math.log(z0)]
-        lbi, ubi = list(lb), list(ub)
-        if load is not None:
-            x0.append(math.log(2 * z0 / (TWO_PI * fa0)))
-            lbi.append(math.log(1e-9))
-            ubi.append(math.log(1.0))
+    def solve(self) -> TwoMassModel:
+        """The model of least cost from three starts (resonance and anti-resonance damping 0.01,
+        0.05, 0.2), the rest from the motor's response (_initial_guess), within bounds."""
+        held, nyq = self.held, self.nyq
+        _, fm, gm, _ = self.data[0]
+        K0, sig0, fr0, fa0 = _initial_guess(fm, gm)
+        if not fr0 > fa0:
+            fa0 = fr0 / 1.05
+        lo_f, hi_f = self.band
+        lb = [math.log(K0 / 100), math.log(1e-3), math.log(lo_f / 2), math.log(1e-4),
+              math.log(1e-4), math.log(1e-4)]
+        ub = [math.log(K0 * 100), math.log(TWO_PI * hi_f), math.log(nyq), math.log(1e4),
+              math.log(0.95), math.log(0.95)]
         if held is not None:
-            lbi[2], ubi[2] = full[2] - 1.0, full[2] + 1.0      # unused: fa is held
-            lbi[5], ubi[5] = full[5] - 1.0, full[5] + 1.0
-        start = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)[free]
-        sol = optimize.least_squares(residuals, start,
-                                     bounds=(np.array(lbi)[free], np.array(ubi)[free]),
-                                     x_scale=1.0, method='trf')
-        if best is None or sol.cost < best.cost:
-            best = sol
-    assert best is not None
-    mdl = unpack(best.x)
-    # Unweighted residuals over the points used, for the report.
-    mag_parts, ph_parts = [], []
-    for name, f, g, _ in data:
-        e = np.log(mdl.response(f, output=name, sample_period=T, delay_ticks=delay_ticks) / g)
-        mag_parts.append(e.real * 20.0 / math.log(10.0))
-        ph_parts.append(np.degrees(e.imag))
-    mags, phs = np.concatenate(mag_parts), np.concatenate(ph_parts)
+            fa0 = held[0]
+            if not fr0 > fa0 * 1.001:
+                fr0 = fa0 * 1.05
+        best = None
+        for z0 in (0.01, 0.05, 0.2):
+            x0 = [math.log(K0), math.log(min(max(sig0, 2e-3), TWO_PI * hi_f / 2)),
+                  math.log(fa0), math.log((fr0 / fa0) ** 2 - 1.0), math.log(z0), math.log(z0)]
+            lbi, ubi = list(lb), list(ub)
+            if self.with_load:
+                x0.append(math.log(2 * z0 / (TWO_PI * fa0)))
+                lbi.append(math.log(1e-9))
+                ubi.append(math.log(1.0))
+            if held is not None:
+                lbi[2], ubi[2] = self.full[2] - 1.0, self.full[2] + 1.0      # unused: fa is held
+                lbi[5], ubi[5] = self.full[5] - 1.0, self.full[5] + 1.0
+            free = self.free
+            start = np.clip(x0, np.array(lbi) + 1e-9, np.array(ubi) - 1e-9)[free]
+            sol = optimize.least_squares(self.residuals, start,
+                                         bounds=(np.array(lbi)[free], np.array(ubi)[free]),
+                                         x_scale=1.0, method='trf')
+            if best is None or sol.cost < best.cost:
+                best = sol
+        assert best is not None
+        return self.unpack(best.x)
+
+
+def _read_fit(problem: _TwoMassProblem, mdl: TwoMassModel, force_per_volt,
+              fpv: float | None) -> TwoMassFit:
+    """What an engineer reads from the fitted model: the inertia split by the inertia ratio
+    (ωr/ωa)² − 1, the stiffness from the anti-resonance, the viscous friction from its pole, in
+    kg and N with the force per volt; the unweighted residuals over the points used."""
+    errors = problem.errors(mdl)
+    mags = np.concatenate([e.real * 20.0 / math.log(10.0) for e in errors])
+    phs = np.concatenate([np.degrees(e.imag) for e in errors])
     K = mdl.accel_per_volt
     rho = (mdl.resonance_hz / mdl.antiresonance_hz) ** 2 - 1.0
     inertia = 1.0 / K
@@ -516,12 +551,12 @@ def fit_two_mass(motor: FrequencyResponse, load: FrequencyResponse | None = None
         physical = dict(total_mass=inertia * fpv, motor_mass=motor_i * fpv,
                         load_mass=load_i * fpv, stiffness=stiffness * fpv,
                         viscous=viscous * fpv)
-    fit = TwoMassFit(mdl, K, inertia, motor_i, load_i, rho, stiffness, viscous,
-                     mdl.resonance_hz, mdl.resonance_damping, mdl.antiresonance_hz,
-                     mdl.antiresonance_damping, (float(lo_f), float(hi_f)), int(mags.size),
-                     float(np.sqrt(np.mean(mags ** 2))), float(np.sqrt(np.mean(phs ** 2))),
-                     force_per_volt, physical, T, int(delay_ticks))
-    return fit
+    lo_f, hi_f = problem.band
+    return TwoMassFit(mdl, K, inertia, motor_i, load_i, rho, stiffness, viscous,
+                      mdl.resonance_hz, mdl.resonance_damping, mdl.antiresonance_hz,
+                      mdl.antiresonance_damping, (float(lo_f), float(hi_f)), int(mags.size),
+                      float(np.sqrt(np.mean(mags ** 2))), float(np.sqrt(np.mean(phs ** 2))),
+                      force_per_volt, physical, problem.T, int(problem.delay_ticks))
 
 
 @dataclass(frozen=True)
@@ -593,14 +628,7 @@ def fit_antiresonance(motor: FrequencyResponse, load: FrequencyResponse, model: 
         e = np.log(model_at(x) / g)
         return np.concatenate([e.real, e.imag])
 
-    # Start from the magnitude of each point: |R| ≈ 1 / |1 − (f / fa)²| below fa.
-    # (points above it, phase near −180°, do not give a guess)
-    mag = np.abs(g)
-    ok = (mag > 1.05) & (np.abs(np.angle(g)) < math.pi / 2)
-    guess = f[ok] / np.sqrt(1.0 - 1.0 / mag[ok]) if np.any(ok) else f * 1.2
-    lb = [math.log(f.min()), math.log(1e-4), math.log(1e-8)]
-    ub = [math.log(model.resonance_hz), math.log(0.5), math.log(1e-2)]
-    fa0 = float(np.clip(np.median(guess), f.min() * 1.001, model.resonance_hz * 0.999))
+    lb, ub, fa0 = _antiresonance_start(f, g, model.resonance_hz)
     best = None
     for z0 in (0.005, 0.02, 0.08):
         x0 = np.clip([math.log(fa0), math.log(z0), math.log(2 * z0 / (TWO_PI * fa0))],
@@ -614,6 +642,19 @@ def fit_antiresonance(motor: FrequencyResponse, load: FrequencyResponse, model: 
     return AntiResonance(fa, za, int(f.size), (float(f[0]), float(f[-1])),
                          float(np.sqrt(np.mean((e.real * 20.0 / math.log(10.0)) ** 2))),
                          float(np.sqrt(np.mean(np.degrees(e.imag) ** 2))))
+
+
+def _antiresonance_start(f, g, resonance_hz: float) -> tuple[list, list, float]:
+    """fit_antiresonance's bounds of log (fa, ζa, τ) and its start for fa: from the magnitude
+    of each point, |R| ≈ 1 / |1 − (f / fa)²| below fa (points above it, phase near −180°, do
+    not give a guess), between the lowest point and the resonance."""
+    mag = np.abs(g)
+    ok = (mag > 1.05) & (np.abs(np.angle(g)) < math.pi / 2)
+    guess = f[ok] / np.sqrt(1.0 - 1.0 / mag[ok]) if np.any(ok) else f * 1.2
+    lb = [math.log(f.min()), math.log(1e-4), math.log(1e-8)]
+    ub = [math.log(resonance_hz), math.log(0.5), math.log(1e-2)]
+    fa0 = float(np.clip(np.median(guess), f.min() * 1.001, resonance_hz * 0.999))
+    return lb, ub, fa0
 
 
 def fit_two_mass_on_ratio(motor: FrequencyResponse, load: FrequencyResponse, *, ratio=None,
@@ -701,32 +742,8 @@ def margins(freq, loop, *, delay=0.0) -> Margins:
     lf = np.log(f)
     lm = np.log(np.abs(L))
     ph = np.unwrap(np.angle(L))
-
-    def at(i, t, arr):
-        return arr[i] + t * (arr[i + 1] - arr[i])
-
-    gcs = []                                       # (f, pm_deg)
-    for i in range(f.size - 1):
-        a, b = lm[i], lm[i + 1]
-        if a == 0.0 or (a < 0.0) != (b < 0.0) and b != 0.0:
-            t = 0.0 if a == 0.0 else a / (a - b)
-            fc = math.exp(at(i, t, lf))
-            pm = (math.degrees(at(i, t, ph)) + 180.0) % 360.0
-            if pm > 180.0:
-                pm -= 360.0
-            gcs.append((fc, pm))
-    if lm[-1] == 0.0:
-        pm = (math.degrees(ph[-1]) + 180.0) % 360.0
-        gcs.append((float(f[-1]), pm - 360.0 if pm > 180.0 else pm))
-    psi = (ph + math.pi) / TWO_PI                 # integer where the phase is −180° mod 360°
-    k = np.floor(psi)
-    pcs = []                                       # (f, gm_db)
-    for i in range(f.size - 1):
-        if k[i] != k[i + 1]:
-            target = max(k[i], k[i + 1])
-            t = (target - psi[i]) / (psi[i + 1] - psi[i])
-            fp = math.exp(at(i, t, lf))
-            pcs.append((fp, -at(i, t, lm) * 20.0 / math.log(10.0)))
+    gcs = _gain_crossovers(f, lf, lm, ph)
+    pcs = _phase_crossovers(lf, lm, ph)
     up = [(g, fp) for fp, g in pcs if g > 0.0]
     down = [(-g, fp) for fp, g in pcs if g <= 0.0]
     gm, fpc = min(up) if up else (math.inf, None)
@@ -739,6 +756,44 @@ def margins(freq, loop, *, delay=0.0) -> Margins:
         pm, crossover, dm = math.inf, None, math.inf
     return Margins(float(gm), fpc, float(pm), crossover, float(dm), float(lgm),
                    [float(g[0]) for g in gcs], [float(p[0]) for p in pcs])
+
+
+def _lerp(i, t, arr):
+    return arr[i] + t * (arr[i + 1] - arr[i])
+
+
+def _gain_crossovers(f, lf, lm, ph) -> list:
+    """[(frequency, phase margin [°])] where |L| crosses 1 (log magnitude `lm` through 0),
+    interpolated in log frequency `lf`, the unwrapped phase `ph` [rad] with it."""
+    gcs = []
+    for i in range(f.size - 1):
+        a, b = lm[i], lm[i + 1]
+        if a == 0.0 or (a < 0.0) != (b < 0.0) and b != 0.0:
+            t = 0.0 if a == 0.0 else a / (a - b)
+            fc = math.exp(_lerp(i, t, lf))
+            pm = (math.degrees(_lerp(i, t, ph)) + 180.0) % 360.0
+            if pm > 180.0:
+                pm -= 360.0
+            gcs.append((fc, pm))
+    if lm[-1] == 0.0:
+        pm = (math.degrees(ph[-1]) + 180.0) % 360.0
+        gcs.append((float(f[-1]), pm - 360.0 if pm > 180.0 else pm))
+    return gcs
+
+
+def _phase_crossovers(lf, lm, ph) -> list:
+    """[(frequency, gain margin [dB])] where the phase crosses −180° modulo 360°,
+    interpolated in log frequency."""
+    psi = (ph + math.pi) / TWO_PI                 # integer where the phase is −180° mod 360°
+    k = np.floor(psi)
+    pcs = []
+    for i in range(lf.size - 1):
+        if k[i] != k[i + 1]:
+            target = max(k[i], k[i + 1])
+            t = (target - psi[i]) / (psi[i + 1] - psi[i])
+            fp = math.exp(_lerp(i, t, lf))
+            pcs.append((fp, -_lerp(i, t, lm) * 20.0 / math.log(10.0)))
+    return pcs
 
 
 def pid_response(freq, *, kp, ki, kd, servo_period, notch=(0.0, 0.0, 0.0, 0.0)):
@@ -860,7 +915,6 @@ def breakaway(t, position, output, counts_per_m: float) -> Breakaway:
         raise ValueError('breakaway needs at least 10 samples of equal length')
     sign = 1.0 if reading[-1] >= reading[0] else -1.0
     if u.size >= 5:
-        from numpy.lib.stride_tricks import sliding_window_view
         u = np.concatenate([u[:2], np.median(sliding_window_view(u, 5), axis=1), u[-2:]])
     moved = np.flatnonzero(sign * np.diff(reading) > 0) + 1
     peaks = [sign * float(np.max(sign * u[max(a, b - 10):b]))
@@ -910,74 +964,55 @@ def physical_units(fit: TwoMassFit, *, slide_mass=None, force_per_volt=None) -> 
                 stiffness=fit.stiffness * fpv, viscous=fit.viscous * fpv)
 
 
-def _lagging(deg):
-    """Phase in (−360°, 0]: a position response lags (−180° for a double integrator)."""
-    return np.where(deg > 0.0, deg - 360.0, deg)
-
-
-def plot_bode(path, motor: FrequencyResponse, load: FrequencyResponse | None,
-              fit: TwoMassFit | None, *, title: str = '', min_coherence: float = 0.9,
-              ratio: FrequencyResponse | None = None) -> None:
-    """Bode plot (magnitude, phase, coherence) of the measured responses [m/V], the fitted
-    model over them, points below `min_coherence` drawn hollow (the fit leaves them out); with
-    `ratio` (:func:`load_motor_ratio` of the runs that located the anti-resonance) a fourth
-    panel: |X_load / X_motor| measured and the model's."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    if ratio is None:
-        fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(9, 9), sharex=True,
-                                               gridspec_kw=dict(height_ratios=[3, 2, 1]))
-    else:
-        fig, (ax_m, ax_p, ax_c, ax_r) = plt.subplots(
-            4, 1, figsize=(9, 11), sharex=True, gridspec_kw=dict(height_ratios=[3, 2, 1, 2]))
-        good = ratio.coherence >= min_coherence
-        for mask, face in ((good, 'C2'), (~good, 'none')):
-            ax_r.semilogx(ratio.freq[mask], np.abs(ratio.response[mask]), 'o', ms=4, mfc=face,
-                          mec='C2', label='measured' if face != 'none' else None)
-        if fit is not None:
-            f = np.geomspace(ratio.freq.min() * 0.8, fit.resonance_hz, 400)
-            ax_r.semilogx(f, np.abs(fit.response(f, output='load') / fit.response(f)), '-',
-                          color='C2', lw=1, label='two-mass model')
-            ax_r.axvline(fit.antiresonance_hz, color='grey', ls=':', lw=0.8)
-        ax_r.set_yscale('log')
-        ax_r.set_ylabel('|X_load / X_motor|')
-        ax_r.legend(fontsize=8)
-        ax_r.grid(True, which='both', alpha=0.3)
-    sets = [('motor', motor, 'C0')] + ([('load', load, 'C1')] if load is not None else [])
-    for name, fr, colour in sets:
-        good = fr.coherence >= min_coherence
-        for mask, face in ((good, colour), (~good, 'none')):
-            ax_m.semilogx(fr.freq[mask], fr.magnitude_db()[mask], 'o', ms=4, mfc=face,
-                          mec=colour, label=f'{name}, measured' if face != 'none' else None)
-            ax_p.semilogx(fr.freq[mask], _lagging(fr.phase_deg()[mask]), 'o', ms=4,
-                          mfc=face, mec=colour)
-        ax_c.semilogx(fr.freq, fr.coherence, 'o-', ms=3, color=colour, label=name)
-        if fit is not None:
-            f = np.geomspace(fr.freq.min(), fr.freq.max(), 800)
-            h = fit.response(f, output=name)
-            ax_m.semilogx(f, 20 * np.log10(np.abs(h)), '-', color=colour, lw=1,
-                          label=f'{name}, two-mass fit')
-            ax_p.semilogx(f, _lagging(np.degrees(np.angle(h))), '-', color=colour, lw=1)
-    if fit is not None:
-        for ax in (ax_m, ax_p):
-            ax.axvline(fit.resonance_hz, color='k', ls=':', lw=0.8)
-            ax.axvline(fit.antiresonance_hz, color='grey', ls=':', lw=0.8)
-        ax_m.set_title(f'{title}\nresonance {fit.resonance_hz:.1f} Hz, anti-resonance '
-                       f'{fit.antiresonance_hz:.1f} Hz' if title else
-                       f'resonance {fit.resonance_hz:.1f} Hz')
-    ax_m.set_ylabel('|G| [dB re 1 m/V]')
-    ax_m.legend(fontsize=8)
-    ax_p.set_ylabel('phase [°]')
-    ax_p.set_ylim(-370, 10)
-    ax_p.set_yticks([-360, -270, -180, -90, 0])
-    ax_c.axhline(min_coherence, color='r', lw=0.8, ls='--')
-    ax_c.set_ylabel('coherence')
-    ax_c.set_ylim(0, 1.05)
-    (ax_c if ratio is None else ax_r).set_xlabel('frequency [Hz]')
-    ax_c.legend(fontsize=8)
-    for ax in (ax_m, ax_p, ax_c):
-        ax.grid(True, which='both', alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+def format_report(r: dict, ref: dict, min_coherence: float = 0.9) -> str:
+    """identify's report (printed and report.md): its result `r` (identify.yaml's keys) as a
+    Markdown table of quantity, value, unit, note, and the fit's points, coherence and
+    residual; `ref` the absolute reference given ({'slide_mass': kg} or {'force_per_volt':
+    N/V}, or {}), `min_coherence` the fit's."""
+    rows = [('resonance', f'{r["resonance_hz"]:.1f}', 'Hz',
+             f'damping {r["resonance_damping"]:.3f}'),
+            ('anti-resonance', f'{r["antiresonance_hz"]:.1f}', 'Hz',
+             f'damping {r["antiresonance_damping"]:.3f}'
+             + (f'; load/motor ratio, {r["ratio_points"]} points'
+                if r.get('ratio_points') else '')),
+            ('total inertia (kaff)', f'{r["inertia"]:.4f}', 'V·s²/m',
+             f'{r["accel_per_volt"]:.3f} m/s² per V'),
+            ('motor-side inertia', f'{r["motor_inertia"]:.4f}', 'V·s²/m', ''),
+            ('slide inertia', f'{r["load_inertia"]:.4f}', 'V·s²/m',
+             f'ratio slide/motor {r["inertia_ratio"]:.3f}'),
+            ('stiffness', f'{r["stiffness"]:.4g}', 'V/m', ''),
+            ('Coulomb friction', f'{r["coulomb"]:.4f}', 'V',
+             f'jogs both ways: +{r["coulomb_pos"]:.4f} / -{r["coulomb_neg"]:.4f}'),
+            ('viscous friction', f'{r["viscous"]:.4f}', 'V·s/m', 'jogs at two speeds')]
+    if 'breakaway_pos' in r:
+        creep = f'creep at ±{r["creep_velocity"] * 1e3:g} mm/s'
+        rows.append(('breakaway friction', f'+{r["breakaway_pos"]:.4f} / '
+                     f'-{r["breakaway_neg"]:.4f}', 'V', (
+                         f'{creep}: the output before the slide broke away, '
+                         f'{r["stick_slips_pos"]} / {r["stick_slips_neg"]} slips')
+                     if r['stick_slips_pos'] or r['stick_slips_neg'] else
+                     f'{creep}: the slide crept without sticking (= Coulomb)'))
+    rows.append(('delay', f'{r["delay_ticks"]}', 'ticks', 'best fit'))
+    if 'force_per_volt' in r:
+        how = ('from --slide-mass' if 'slide_mass' in ref else 'given (--force-per-volt)')
+        rows += [('amplifier force per volt', f'{r["force_per_volt"]:.3f}', 'N/V', how),
+                 ('motor-side inertia', f'{r["motor_mass"]:.3f}', 'kg', 'as a mass at the slide'),
+                 ('slide mass', f'{r["slide_mass"]:.3f}', 'kg', ''),
+                 ('stiffness', f'{r["stiffness_n_per_m"]:.4g}', 'N/m', ''),
+                 ('Coulomb friction', f'{r["coulomb_n"]:.3f}', 'N', ''),
+                 ('viscous friction', f'{r["viscous_n_s_per_m"]:.2f}', 'N·s/m', '')]
+        if 'motor_inertia_kg_m2' in r:
+            rows.append(('motor inertia', f'{r["motor_inertia_kg_m2"]:.4g}', 'kg·m²',
+                         'with --lead'))
+        if 'amplifier_gain' in r:
+            rows.append(('amplifier gain', f'{r["amplifier_gain"]:.4f}', 'A/V',
+                         'with --torque-constant'))
+    lines = ['| quantity | value | unit | note |', '|---|---:|---|---|']
+    lines += [f'| {a} | {b} | {c} | {d} |' for a, b, c, d in rows]
+    lines.append(f'\nfit over {r["points"]} points (motor and load) with coherence >= '
+                 f'{min_coherence:g} in {r["band"][0]:g}-{r["band"][1]:g} Hz; '
+                 f'{r["coherent_fraction"] * 100:.0f} % of the {r["frequencies"]} frequencies '
+                 f'measured coherently on motor or load (lowest of the better one '
+                 f'{r["coherence_min"]:.3f}); residual {r["rms_error_db"]:.2f} dB, '
+                 f'{r["rms_error_deg"]:.1f}° rms')
+    return '\n'.join(lines)
