@@ -139,6 +139,16 @@ class Axis(AxisCommands):
         # What the servo tick and the commands read, typed and derived once here.
         self.config = c = AxisConfig.of_checked(r)
         feedback = c.feedback
+        # ... and what the tick reads of it, copied: one native load each per tick
+        self._motor_side: bool = c.motor_side
+        self._vel_on_load: bool = c.velocity_on_load
+        self._motor_cpm: float = c.motor_counts_per_m
+        self._load_cpm: float = c.load_counts_per_m
+        self._half: float = c.half_count
+        self._shift: float = c.window_shift
+        self._fe_fatal: float = c.following_error_fatal
+        self._fe_warn: float = c.following_error_warning
+        self._overspeed: float = c.overspeed
         self._stall: float = STALL_PERIODS * T
         self.hunting.configure(c.hunting_reversals)
         if old and old['feedback'] != feedback and self.homed:
@@ -148,7 +158,7 @@ class Axis(AxisCommands):
     @property
     def motor_side_loop(self) -> bool:
         """Position loop closed on the motor encoder: compensation applies there only."""
-        return self.config.motor_side
+        return self._motor_side
 
     @property
     def loop_counts_per_m(self) -> float:
@@ -199,7 +209,7 @@ class Axis(AxisCommands):
         self.sampled_offset = 0.0
         self.sampled.cancel()
         self.settling.idle()
-        if self.config.motor_side:
+        if self._motor_side:
             pos = self.motor_pos - self.correction
         else:
             pos = self.load_pos
@@ -218,8 +228,8 @@ class Axis(AxisCommands):
     def home(self, motor_counts: float, load_counts: float) -> None:
         """First feedback: take the encoders as they are and close the loop there (unless a
         fault came first: then it stays open until reset and enable)."""
-        self.motor_pos = motor_counts / self.config.motor_counts_per_m
-        self.load_pos = load_counts / self.config.load_counts_per_m
+        self.motor_pos = motor_counts / self._motor_cpm
+        self.load_pos = load_counts / self._load_cpm
         self.backlash.reset(self.motor_pos)
         self.correction = 0.0
         self.homed = True
@@ -278,7 +288,7 @@ class Axis(AxisCommands):
             self._read_encoders(motor_counts, load_counts, sample_dt)
         if not self.enabled:
             return self._update_open()
-        if abs(self.motor_vel) > self.config.overspeed:
+        if abs(self.motor_vel) > self._overspeed:
             self._overspeed_fault()
             return 0.0
         self._step_command(dt, age)
@@ -296,8 +306,8 @@ class Axis(AxisCommands):
     # The stages of the tick, in order.
     def _read_encoders(self, motor_counts: float, load_counts: float, sample_dt: float) -> None:
         """1. Both encoders; velocity and acceleration over the time the sample covers."""
-        motor_pos = motor_counts / self.config.motor_counts_per_m
-        load_pos = load_counts / self.config.load_counts_per_m
+        motor_pos = motor_counts / self._motor_cpm
+        load_pos = load_counts / self._load_cpm
         motor_vel = (motor_pos - self.motor_pos) / sample_dt
         load_vel = (load_pos - self.load_pos) / sample_dt
         self.motor_acc = (motor_vel - self.motor_vel) / sample_dt
@@ -319,7 +329,7 @@ class Axis(AxisCommands):
         if self._guard:
             self._guard_tick(dt)
         position = p.position
-        if self.config.motor_side:
+        if self._motor_side:
             correction = self.correction = self.backlash.step(position, dt)
             loop_cmd = position + correction
             loop_pos = self.motor_pos
@@ -327,7 +337,7 @@ class Axis(AxisCommands):
         else:
             loop_cmd = position
             loop_pos = self.actual_pos = self.load_pos
-        if self.config.velocity_on_load:
+        if self._vel_on_load:
             self.actual_vel, self._loop_acc = self.load_vel, self.load_acc
         else:
             self.actual_vel, self._loop_acc = self.motor_vel, self.motor_acc
@@ -341,11 +351,11 @@ class Axis(AxisCommands):
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
         measured state, in the profile's frame; a path stepped on by STALL_PERIODS only."""
         p = self.profile
-        if self.config.motor_side:
+        if self._motor_side:
             position, velocity = self.motor_pos - self.correction, self.motor_vel
         else:
             position = self.load_pos
-            velocity = self.load_vel if self.config.velocity_on_load else self.motor_vel
+            velocity = self.load_vel if self._vel_on_load else self.motor_vel
         if not (p.moving and p.rebase(position, velocity)):
             p.step(self._stall)
 
@@ -356,12 +366,12 @@ class Axis(AxisCommands):
         the load loop's limit cycle across the backlash the slide bounces in the gap at twice
         the motor's speed, 0.23 m/s in the headline table's `load` row.)"""
         self._trip(_OVERSPEED, 'OVERSPEED', f'motor velocity {self.motor_vel:+.4f} m/s beyond '
-                   f'overspeed_velocity {self.config.overspeed:g} m/s')
+                   f'overspeed_velocity {self._overspeed:g} m/s')
 
     def _following_error_fatal(self) -> bool:
         """5. Beyond following_error_fatal (PMAC Ixx11) the loop opens (the warning, Ixx12, is a
         status bit)."""
-        fe, fatal = self.following_error, self.config.following_error_fatal
+        fe, fatal = self.following_error, self._fe_fatal
         if not (fatal > 0.0 and abs(fe) > fatal):
             return False
         self._trip(_FE_FATAL, 'FOLLOWING_ERROR_FATAL', f'following error {fe * 1e3:+.3f} mm '
@@ -387,10 +397,9 @@ class Axis(AxisCommands):
             p = self.profile
             velocity = p.velocity
             vel = self.actual_vel   # (positional: keywords cost 0.13 µs a call here)
-            c = self.config
             self.output = self.servo.update(
                 sample_dt, self._loop_cmd, velocity, p.acceleration, self._loop_pos, vel, vel,
-                self._loop_acc, velocity == 0.0 and not p.moving, c.half_count, c.window_shift)
+                self._loop_acc, velocity == 0.0 and not p.moving, self._half, self._shift)
         return self.output
 
     def _update_status(self, sample_dt: float, motor_counts) -> None:
@@ -399,7 +408,7 @@ class Axis(AxisCommands):
         settled."""
         p = self.profile
         bits = self.settling.step(sample_dt, p.position, p.velocity, p.done,
-                                  self.actual_pos + self.sampled_offset + self.config.window_shift,
+                                  self.actual_pos + self.sampled_offset + self._shift,
                                   self.actual_vel)
         if self.target is not None and self.sampled.phase != _S_IDLE:
             bits = self._sampled_step(sample_dt, motor_counts, bits)
@@ -425,14 +434,14 @@ class Axis(AxisCommands):
 
     def _update_open(self) -> float:
         """Loop open: the command follows the actual position so closing it is bumpless."""
-        if self.config.motor_side:
+        if self._motor_side:
             self.profile.hold(self.motor_pos - self.correction)
             self.actual_pos = self.motor_pos - self.correction - self.sampled_offset
             self.actual_vel = self.motor_vel
         else:
             self.profile.hold(self.load_pos)
             self.actual_pos = self.load_pos
-            self.actual_vel = self.load_vel if self.config.velocity_on_load else self.motor_vel
+            self.actual_vel = self.load_vel if self._vel_on_load else self.motor_vel
         self.output = 0.0
         self._compose(self.settling.open_loop_bits())
         return 0.0
@@ -442,7 +451,7 @@ class Axis(AxisCommands):
         s = self.sampled
         assert self.target is not None           # (called only while a target is set)
         load_error = self.target - self.load_pos
-        cpm = self.config.load_counts_per_m
+        cpm = self._load_cpm
         v2 = None if dt <= 0.0 else s.update(
             dt, profile_done=self.profile.done, motor_settled=bool(bits & _DONE),
             motor_counts=int(motor_counts), load_counts=round(self.load_pos * cpm),
@@ -478,7 +487,7 @@ class Axis(AxisCommands):
         s = motion_bits | self._faults | self._sticky
         if self.enabled:
             s |= _ENABLED
-            w = self.config.following_error_warning
+            w = self._fe_warn
             if w > 0.0 and abs(self.following_error) > w:
                 s |= _FE_WARNING
             servo = self.servo
@@ -488,7 +497,7 @@ class Axis(AxisCommands):
                 s |= _INTEGRATOR_HELD
             if self.sampled.phase == _S_CORRECTING:
                 s |= _CORRECTING | _MOVING
-        if self.config.motor_side and self.backlash.active:
+        if self._motor_side and self.backlash.active:
             s |= _BACKLASH
         if s != self._word:
             self._word = s

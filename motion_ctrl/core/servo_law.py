@@ -104,11 +104,6 @@ def saturates_with(c: LawConfig, notch: Biquad, total: float, raw: float,
     return abs(_finish(c, notch.peek(total), raw, stopped)) >= c.output_limit
 
 
-def limit_integration(i: float, limit: float) -> float:
-    """INTEGRATION_LIMIT: the integrator's output within ±limit."""
-    return -limit if i < -limit else limit if i > limit else i
-
-
 def clamp_state(co: float, ff: float, c: LawConfig) -> float:
     """STATE_CLAMP: CO such that CO + ff stays within ±(output_limit − output_deadband)."""
     room = max(c.output_limit - c.output_deadband, 0.0)
@@ -133,10 +128,13 @@ class PidLaw:
         c = law.config
         held = c.integrate_at_rest and not -REST_VELOCITY <= cmd_vel <= REST_VELOCITY
         il = c.integration_limit
-        i_old = limit_integration(law.integral, il)     # Ixx63 may have dropped
+        # INTEGRATION_LIMIT (written out: a call more each tick, twice)
+        i_old = law.integral
+        i_old = -il if i_old < -il else il if i_old > il else i_old   # Ixx63 may have dropped
         i_new = i_old
         if not held:
-            free = limit_integration(i_old + c.ki * error * dt, il)
+            free = i_old + c.ki * error * dt
+            free = -il if free < -il else il if free > il else free
             i_new = free
             if anti_hunting:
                 i_new = db.limit_integral_to_wind_down(i_old, free)     # WIND_DOWN_ONLY
