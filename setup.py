@@ -45,7 +45,7 @@ EXECUTABLES = {
 # extension modules when the package is built (a wheel by scripts/bootstrap, and in place for
 # the source tree), so that an axis' tick and a simulated one run several times faster
 # (doc/performance.md). Without mypyc (MOTION_CTRL_COMPILE=0, or a build with no mypy) the
-# same modules run as Python, with the same results (test/test_compiled.py).
+# same modules run as Python, with the same results (test/package/test_compiled.py).
 COMPILED = [
     'motion_ctrl/core/config.py', 'motion_ctrl/core/notch.py', 'motion_ctrl/core/deadband.py',
     'motion_ctrl/core/servo_law.py', 'motion_ctrl/core/settling.py',
@@ -90,7 +90,7 @@ def write_shims():
         with open(path, 'w') as f:
             f.write(SHIM.format(name=name))
         # install_data copies with the mode kept, the wheel records it and pip
-        # restores +x: checked by test/test_packaging.py after bootstrap.
+        # restores +x: checked by test/package/test_packaging.py after bootstrap.
         os.chmod(path, 0o755)
         paths.append(path)
     return paths

@@ -2,7 +2,7 @@
 #
 # Laid out as rosdoc2 expects of a ROS 2 package (a Sphinx project in doc/, conf.py beside
 # index.md), so a ROS build farm renders it too; rosdoc2 then adds its own theme and extensions.
-# Build it locally with scripts/docs (warnings are errors, as test/test_docs.py builds it).
+# Build it locally with scripts/docs (warnings are errors, as test/docs/test_docs.py builds it).
 project = 'motion_ctrl'
 author = 'motion_ctrl developers'
 copyright = 'motion_ctrl developers, Apache-2.0'

@@ -3,6 +3,7 @@
 Fixtures shared by several test modules go below the setup block.
 """
 import os
+import pathlib
 import sys
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -50,24 +51,23 @@ from _pytest.mark.expression import Expression  # noqa: E402
 
 
 # --- The core marker: tests that need no ROS -----------------------------------------------------
-# The test files of the ROS-free layers (motion_ctrl/core, sim, analysis; doc/architecture.md,
-# "Layers"): in-process, no rclpy or message package, no process started. Every test in them is
-# marked `core` (`scripts/test -m core`), except those marked `core_slow` (ROS-free as well, but
-# a whole simulated test plan each, seconds apiece: they run with the full suite, or with
-# `-m "core or core_slow"`). The list is the one place that says which file is which; while a
-# test of these files runs, ROS packages refuse to import and starting a process fails (below),
-# and test_core_without_ros imports each of them in an interpreter without ROS.
-CORE_FILES = frozenset({
-    'test_autotune.py', 'test_axis_rules.py', 'test_backlash.py', 'test_canopen.py',
-    'test_coordinated.py', 'test_docs.py',
-    'test_core_without_ros.py', 'test_deadband.py', 'test_excitation.py', 'test_feedback_sync.py',
-    'test_follow_goal.py', 'test_gather.py', 'test_hardware.py', 'test_identify.py',
-    'test_iso230.py', 'test_motion_events.py', 'test_notch.py', 'test_overspeed.py',
-    'test_plant.py',
-    'test_profile.py', 'test_registers.py', 'test_rest.py', 'test_scenarios.py',
-    'test_servo_law.py', 'test_servo_loop.py', 'test_servo_scenarios.py', 'test_settling.py',
-    'test_trajectory.py', 'test_two_clocks.py',
-})
+# test/ mirrors the package's layers (doc/architecture.md, "Layers"): the folders of the ROS-free
+# layers (core, sim, analysis, canopen) and docs/ hold tests that are in-process, import no rclpy
+# or message package and start no process. Every test in them is marked `core` (`scripts/test
+# -m core`), except those marked `core_slow` (ROS-free as well, but a whole simulated test plan
+# each, seconds apiece: they run with the full suite, or with `-m "core or core_slow"`). The
+# folder says which file is which; while a test there runs, ROS packages refuse to import and
+# starting a process fails (below), and test_core_without_ros imports each of them in an
+# interpreter without ROS. ros/, tools/ and package/ hold the rest.
+TEST_ROOT = pathlib.Path(__file__).resolve().parent
+CORE_FOLDERS = ('core', 'sim', 'analysis', 'canopen', 'docs')
+
+
+def core_files() -> list[pathlib.Path]:
+    """The test files of CORE_FOLDERS."""
+    return sorted(f for d in CORE_FOLDERS for f in (TEST_ROOT / d).glob('test_*.py'))
+
+
 CORE_MARKS = ('core', 'core_slow')
 # What a ROS-free test may not import: ROS 2's Python packages and messages, and what reads bags.
 ROS_PACKAGES = ('rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'std_srvs',
@@ -80,7 +80,7 @@ class NoRos:
 
     def find_spec(self, name, path=None, target=None):
         if name.split('.')[0] in ROS_PACKAGES:
-            raise ImportError(f'{name}: a core test may not import ROS (conftest.CORE_FILES)')
+            raise ImportError(f'{name}: a core test may not import ROS (conftest.CORE_FOLDERS)')
         return None
 
 
@@ -88,11 +88,14 @@ NO_ROS = NoRos()
 
 
 def is_core_file(path) -> bool:
-    return os.path.basename(str(path)) in CORE_FILES
+    """A file (or folder) of CORE_FOLDERS."""
+    p = pathlib.Path(str(path)).resolve()
+    return p.is_relative_to(TEST_ROOT) and len(p.relative_to(TEST_ROOT).parts) > 1 \
+        and p.relative_to(TEST_ROOT).parts[0] in CORE_FOLDERS
 
 
 def core_only(config) -> bool:
-    """The -m expression selects no test outside CORE_FILES (`-m core`, `-m "core or
+    """The -m expression selects no test outside CORE_FOLDERS (`-m core`, `-m "core or
     core_slow"`): decided for a test with no other mark and for one with every other mark."""
     expr = config.option.markexpr
     if not expr:
@@ -114,8 +117,12 @@ def pytest_configure(config):
 
 
 def pytest_ignore_collect(collection_path, config):
-    if (collection_path.name.startswith('test_') and collection_path.suffix == '.py'
-            and not is_core_file(collection_path) and core_only(config)):
+    if not core_only(config):
+        return None
+    p = pathlib.Path(str(collection_path)).resolve()
+    if p.parent == TEST_ROOT and p.is_dir():         # a folder of the shell: not even read
+        return True if p.name not in CORE_FOLDERS and p.name != 'data' else None
+    if p.name.startswith('test_') and p.suffix == '.py' and not is_core_file(p):
         return True
     return None
 
@@ -127,19 +134,19 @@ def pytest_collection_modifyitems(config, items):
         marks = {m.name for m in item.iter_markers() if m.name in CORE_MARKS}
         if marks and not core:
             raise pytest.UsageError(f'{item.nodeid}: marked {" and ".join(sorted(marks))} but '
-                                    'its file is not in conftest.CORE_FILES')
+                                    'its file is not in conftest.CORE_FOLDERS')
         if core and not marks:
             item.add_marker(pytest.mark.core)
 
 
 def _no_process(*args, **kwargs):
     raise AssertionError('a core test starts no process (mark it fresh_interpreter if it runs '
-                         'plain Python without ROS, or move it out of conftest.CORE_FILES)')
+                         'plain Python without ROS, or move it out of conftest.CORE_FOLDERS)')
 
 
 @pytest.fixture(autouse=True)
 def core_is_ros_free(request, monkeypatch):
-    """A test of CORE_FILES runs with ROS packages refusing to import (those not imported yet:
+    """A test of CORE_FOLDERS runs with ROS packages refusing to import (those not imported yet:
     in a `-m core` run, all) and may start no process (fresh_interpreter: plain Python)."""
     if not is_core_file(request.path):
         yield

@@ -8,7 +8,7 @@ FOLLOWING_ERROR_FATAL), of moves that end within 1 linear count on the true slid
 whose MOTION_DONE the client saw only after 5 s without a fault (counted apart: the loop was
 done, a loaded bridge's copies were not), and the RSS
 of both nodes' processes (the loop on the servo bus, the bridge) after WARM_UP_MOVES and at the
-end. The churn test (test/test_ros_churn.py) drives the same `Soak` with 20 visitors and a
+end. The churn test (test/ros/test_ros_churn.py) drives the same `Soak` with 20 visitors and a
 recorder. `scripts/soak --floods` instead floods the loop with targets and oversized inputs and
 prints its rate before and during each (motion_ctrl.procedures.floods).
 """

@@ -9,7 +9,7 @@ import yaml
 
 from motion_ctrl.core import registers as R
 
-REPO = pathlib.Path(__file__).resolve().parent.parent
+REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize('path', sorted(R.GENERATED))

@@ -1,7 +1,7 @@
 """The servo core imports and runs on a machine without ROS (issue 13): in a fresh interpreter
 where every ROS package refuses to import, the core modules import and the harness lands a
 1-inch move. Fails if a core module (or what it imports) pulls in rclpy or a message package.
-The core tests (conftest.CORE_FILES, `scripts/test -m core`) import there too.
+The core tests (conftest.CORE_FOLDERS, `scripts/test -m core`) import there too.
 
 Every module of the package lives in a layer (core, sim, analysis, canopen, plotting: ROS-free;
 ros, bags, procedures, tools: the shell); every module of the ROS-free layers is imported by the
@@ -13,7 +13,7 @@ import textwrap
 
 import pytest
 
-from conftest import CORE_FILES, REPO_ROOT, ROS_PACKAGES, core_only
+from conftest import REPO_ROOT, ROS_PACKAGES, core_files, core_only
 
 # The layout is the architecture: these subpackages are plain Python (numpy, scipy, ruckig,
 # matplotlib, canopen) and must import without ROS: the servo core, the simulated machine, the
@@ -64,11 +64,12 @@ PROGRAM = textwrap.dedent('''
     assert h.move(0.0254) is not None, 'no MOTION_DONE'
     err = h.load_error_counts(0.0254)
     assert abs(err) < 3.0, err
-    sys.path.insert(0, %r)
-    for t in %r:                           # the core tests' own imports
+    sys.path.insert(0, %r)                 # conftest, kit
+    for folder, t in %r:                   # the core tests' own imports
+        sys.path[:0] = [folder]
         importlib.import_module(t)
     assert not any(name.split('.')[0] in ROS for name in sys.modules)
-''') % (ROS_PACKAGES, CORE, TEST_DIR, sorted(f[:-3] for f in CORE_FILES))
+''') % (ROS_PACKAGES, CORE, TEST_DIR, [(str(f.parent), f.stem) for f in core_files()])
 
 
 def test_every_module_is_in_a_layer():

@@ -19,7 +19,7 @@ from sphinx.cmd.build import build_main
 
 from motion_ctrl.core import registers as R
 
-REPO = pathlib.Path(__file__).resolve().parent.parent
+REPO = pathlib.Path(__file__).resolve().parents[2]
 DOC = REPO / 'doc'
 # As scripts/docs and a build farm's strict build: warnings are errors, all of them reported.
 STRICT = ['-W', '--keep-going', '-n', '-q', '-b', 'html']

@@ -1,17 +1,13 @@
 """Tests of the one-axis move generator (motion_ctrl.core.profile)."""
 
 import math
-import os
-import sys
 
 import pytest
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from kit import INCH  # noqa: E402
-from motion_ctrl.core.profile import Profile  # noqa: E402
-from motion_ctrl.core.registers import CONTROLLER_AXIS  # noqa: E402
-from motion_ctrl.core.config import ProfileConfig  # noqa: E402
+from kit import INCH
+from motion_ctrl.core.profile import Profile
+from motion_ctrl.core.registers import CONTROLLER_AXIS
+from motion_ctrl.core.config import ProfileConfig
 
 T = 0.001          # 1 kHz servo period
 VMAX = 0.1

@@ -14,7 +14,7 @@ from motion_ctrl.analysis import iso230
 from motion_ctrl.ros.client import SlideClient
 from motion_ctrl.ros.processes import NodeProcess, params_dir
 
-REPO = pathlib.Path(__file__).resolve().parent.parent
+REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture

@@ -126,7 +126,8 @@ def test_autotune_notch_where_the_resonance_limits_the_loop(node_env, tmp_path):
 
 
 # Opt-in (48 s): test_autotune holds the same rule on this plant without ROS, and the suite's
-# time is kept well under CI's 15 minutes. MOTION_CTRL_LONG=1 scripts/test test/test_ros_autotune.py
+# time is kept well under CI's 15 minutes.
+# MOTION_CTRL_LONG=1 scripts/test test/tools/test_ros_autotune.py
 @pytest.mark.skipif(os.environ.get('MOTION_CTRL_LONG') != '1',
                     reason='opt-in, 48 s: MOTION_CTRL_LONG=1 (test_autotune checks the rule on '
                            'this plant without ROS)')

@@ -16,11 +16,13 @@ import sys
 import numpy as np
 import pytest
 
+import conftest
+
 from motion_ctrl.bags import reader
 from motion_ctrl.bags import repair as bag_repair
 from motion_ctrl.tools import report
 
-REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
+REPO_ROOT = pathlib.Path(conftest.REPO_ROOT)
 JS = 'sensor_msgs/msg/JointState'
 U32 = 'std_msgs/msg/UInt32'
 

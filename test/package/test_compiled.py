@@ -9,7 +9,8 @@ import sys
 
 import pytest
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from conftest import REPO_ROOT
+
 
 # The run compared: the headline table (every configuration, the leadscrew calibration
 # included) and every float of a harness trace of the 1-inch move and back, as a digest.

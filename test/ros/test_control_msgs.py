@@ -25,7 +25,7 @@ import pytest
 
 pytest.importorskip('control_msgs.action')
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 
 PUBLISHED = {
     'control_msgs/msg/JointTolerance':

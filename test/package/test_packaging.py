@@ -10,7 +10,8 @@ from importlib import metadata
 
 import pytest
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from conftest import REPO_ROOT
+
 PACKAGE = 'motion_ctrl'
 
 # The contract: `ros2 run motion_ctrl NAME` for each of these names (README's executables);

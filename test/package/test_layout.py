@@ -1,4 +1,4 @@
-"""The rooms say what they hold (doc/architecture.md, "Layout"): the ROS shell and the tools in
+"""The rooms say what they hold (doc/architecture.md, "Layers"): the ROS shell and the tools in
 modules of at most MAX_MODULE_LINES, functions of at most MAX_FUNCTION_LINES everywhere but the
 documented exceptions, and each tool (a command of setup.py's EXECUTABLES in motion_ctrl.tools)
 importing no other tool: what tools share lives in procedures/, bags/, analysis/, plotting/."""
@@ -10,7 +10,7 @@ from conftest import REPO_ROOT
 PACKAGE = pathlib.Path(REPO_ROOT) / 'motion_ctrl'
 MAX_MODULE_LINES = 400
 MAX_FUNCTION_LINES = 60
-# Longer on purpose, each for its reason (doc/architecture.md, "Layout").
+# Longer on purpose, each for its reason (doc/architecture.md, "Where the core is larger ...").
 EXCEPTIONS = {
     # the plant's integration kernel, compiled: one loop over locals that mypyc keeps as C
     # doubles; split into calls it would box and unbox every substep (test_plant_kernel)

@@ -28,6 +28,8 @@ import time
 import numpy as np
 import pytest
 
+import conftest
+
 from kit import running_slide, spin_for
 from msg_defs.status import Status
 from motion_ctrl.analysis.moves import format_summary, summarize_moves
@@ -37,7 +39,7 @@ from motion_ctrl.tools import report
 from motion_ctrl.sim.harness import Harness
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M
 
-REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
+REPO_ROOT = pathlib.Path(conftest.REPO_ROOT)
 SERVO_TOPICS = ['/joint_states', '/reference_states', '/motor_states', '/command', '/encoders',
                 '/plant_states']
 RECORD_SECONDS = 10.5

@@ -20,7 +20,7 @@ import pytest
 from motion_ctrl.core.registers import SHIPPED_SLIDE_TUNING
 from motion_ctrl.sim.two_clocks import DEMO_END, TwoClockHardware, demo_moves, repeat
 
-CLOCKS = pathlib.Path(__file__).parent / 'data' / 'demo_clocks.npz'
+CLOCKS = pathlib.Path(__file__).parents[1] / 'data' / 'demo_clocks.npz'
 GRID = [k * 1e-3 for k in range(3300)]              # the plant's ticks, exactly 1 ms apart
 PHASES = [0.05e-3 + k * 0.1e-3 for k in range(10)]  # where the controller ticks after them
 SHIPPED = dict(SHIPPED_SLIDE_TUNING)
