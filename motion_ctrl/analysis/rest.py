@@ -66,6 +66,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = ['WINDOWS', 'AID_SHARES', 'TURN_SHARE', 'slip', 'coverage', 'promise', 'Candidate',
            'candidates', 'Plan', 'plan', 'Trial', 'search', 'Judgement', 'judge', 'turns',
@@ -260,7 +261,6 @@ def search(cands: list[Candidate], trial: Callable[[Candidate], Trial],
 def _median5(x: np.ndarray) -> np.ndarray:
     if x.size < 5:
         return x
-    from numpy.lib.stride_tricks import sliding_window_view
     return np.median(sliding_window_view(x, 5), axis=1)
 
 

@@ -4,16 +4,21 @@ tool's ROS client, ready, and `AxisUnderTest`: one axis of a running controller 
 ROS user drives it (targets on `target_position`, MOTION_DONE from `<axis>/status`, readings
 from `joint_states`, registers through the parameter services `ros2 param` uses).
 
-rclpy and the message packages are imported inside the functions that use them: `--help` and a
-tool's offline modes (autotune --from) start without ROS.
+rclpy, the message packages and motion_ctrl.ros are imported inside the functions that use them:
+`--help` and a tool's offline modes (autotune --from) start without them, and the ROS-free tests
+run autotune's offline mode where ROS refuses to import (test/analysis/test_autotune.py).
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import datetime
 import pathlib
 
 import numpy as np
+
+import msg_defs as md
+from msg_defs.status import Status
 
 
 class SessionError(RuntimeError):
@@ -28,7 +33,6 @@ class AxisUnderTest:
     def __init__(self, client, axis: str = 'x', controller: str = 'controller'):
         from rclpy.parameter_client import AsyncParameterClient
         from sensor_msgs.msg import JointState
-        import msg_defs as md
         self.client, self.axis = client, axis
         self.params = AsyncParameterClient(client, controller)
         # joint_states arrive at the servo rate: taken raw (no Python message per sample, the
@@ -79,7 +83,6 @@ class AxisUnderTest:
 
     # -- motion and readings -----------------------------------------------------------------
     def move(self, position: float, timeout: float) -> None:
-        from msg_defs.status import Status
         if self.client.move({self.axis: position}, timeout=timeout) is None:
             word = self.client.status[self.axis]
             raise SessionError(f'move to {position:.6f} m: no MOTION_DONE within '
@@ -94,7 +97,6 @@ class AxisUnderTest:
         slide, carried along, stays there across the backlash: harness, 2 ticks of latency,
         six approaches land 6-16 counts long; with a 0.5 mm, 0.5 s final segment 1.6-1.9.
         `distance` 0: a plain move."""
-        from msg_defs.status import Status
         if distance > 0.0:
             self.move(position - direction * distance, timeout)
             if self.client.follow([self.axis], [duration], [[position]],
@@ -182,7 +184,6 @@ def axis_session(args, tool: str, services: bool = False, truth: bool = False):
     Raises SessionError when the controller is not ready."""
     from motion_ctrl.ros import ros_env
     domain = ros_env.private_domain()
-    import datetime
     import rclpy
     from motion_ctrl.ros.client import SlideClient
     out = pathlib.Path(args.out or datetime.datetime.now().strftime(
@@ -207,7 +208,6 @@ def axis_session(args, tool: str, services: bool = False, truth: bool = False):
             # before its `command` reaches the plant (a move then runs into
             # FOLLOWING_ERROR_FATAL on a motor that does not turn). Wait until the graph shows
             # the plant reading `command`, and a moment for the controller's side of the match.
-            import msg_defs as md
             client.spin_until(lambda: client.count_subscribers(md.COMMAND) > 0, 20.0)
             client.spin_for(1.0)
         yield client, AxisUnderTest(client, args.axis), out

@@ -28,6 +28,7 @@ import sys
 import numpy as np
 
 from motion_ctrl.sim.harness import Harness
+from motion_ctrl.sim.plant import SlidePlant
 
 STEP = 25.4e-6        # 10 linear counts
 LATENCY_TICKS = 1     # encoder -> command over DDS
@@ -45,7 +46,6 @@ def identify(plant: dict | None = None) -> dict:
     Two drive levels cancel the Coulomb friction: a(V) = (gain·V − friction)/M is linear in V,
     and so is the steady speed under viscous friction.
     """
-    from motion_ctrl.sim.plant import SlidePlant
     free = (plant or {}) | dict(travel_min=-1e3, travel_max=1e3)   # room for the jogs
 
     def accel(volts):
