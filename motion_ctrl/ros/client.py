@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 
+from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import UInt32
@@ -174,7 +175,6 @@ class SlideClient(Node):
         """Send a joint_trajectory (starting now) and wait as `move` does, `timeout` after its
         last point; returns as `move`."""
         self.spin_until(lambda: self.pub_trajectory.get_subscription_count() > 0, 5.0)
-        from builtin_interfaces.msg import Time
         msg = md.joint_trajectory(Time(), names, times, positions, velocities, accelerations)
         return self._send_and_wait(self.pub_trajectory, msg, list(names),
                                    max(times) + timeout)

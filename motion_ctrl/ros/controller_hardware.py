@@ -14,6 +14,7 @@ from motion_ctrl.ros.plant_states import PlantStates
 from motion_ctrl.core.registers import (CONTROLLER_AXIS, CONTROLLER_GLOBAL, HARDWARE_REGISTERS,
                                         PLANT_AXIS, consistency, plant_consistency)
 from motion_ctrl.sim.hardware import SimHardware
+from motion_ctrl.canopen.master import AxisNodes, CanopenHardware
 
 
 def declare_hardware(node, params_files) -> dict:
@@ -54,7 +55,6 @@ def make_hardware(node, values: dict, readers_refresh: float):
 
 
 def _canopen(node, values: dict):
-    from motion_ctrl.canopen.master import AxisNodes, CanopenHardware
     if node.sim_time:
         raise ValueError('hardware: canopen runs in real time: the drives step on its SYNC; '
                          'use_sim_time is for topics or sim')

@@ -357,8 +357,8 @@ class ControllerNode(ros_params.RegisterNode):
 
     def destroy_node(self) -> None:
         # The worker threads end first: they hold the node, and a node alive at the
-        # interpreter's exit outlives the extension modules (nanobind listed ruckig's objects
-        # as ~30 lines of "leaked" on every stop).
+        # interpreter's exit outlives the extension modules (nanobind then reports ruckig's
+        # objects as leaked, ~30 lines on every stop).
         for part in ('inputs', 'excitation'):     # (a node refused half-made lacks some)
             if hasattr(self, part):
                 getattr(self, part).close()

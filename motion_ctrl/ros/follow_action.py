@@ -24,8 +24,22 @@ from __future__ import annotations
 import queue
 import threading
 
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.task import Future
+
 import msg_defs as md
 from motion_ctrl.core import follow_goal as fg
+
+try:
+    from control_msgs.action import FollowJointTrajectory
+    from control_msgs.msg import JointTrajectoryControllerState
+    from control_msgs.srv import QueryTrajectoryState
+
+    import msg_defs.follow as mf
+except ImportError as e:             # (a build without control_msgs: the server says so)
+    _NO_CONTROL_MSGS: ImportError | None = e
+else:
+    _NO_CONTROL_MSGS = None
 
 
 class FollowJointTrajectoryServer:
@@ -37,20 +51,12 @@ class FollowJointTrajectoryServer:
         self.node = node
         self.limits = max_ahead, max_names, max_points
         self.runner: fg.GoalRunner | None = None
-        try:
-            from control_msgs.action import FollowJointTrajectory
-            from control_msgs.msg import JointTrajectoryControllerState
-            from control_msgs.srv import QueryTrajectoryState
-
-            import msg_defs.follow as mf
-        except ImportError as e:
+        if _NO_CONTROL_MSGS is not None:
             node.get_logger().warning(
-                f'control_msgs is not installed ({e}): follow_joint_trajectory, controller_state '
-                'and query_state are not offered (scripts/bootstrap builds it; a ROS install: '
-                'apt install ros-$ROS_DISTRO-control-msgs)')
+                f'control_msgs is not installed ({_NO_CONTROL_MSGS}): follow_joint_trajectory, '
+                'controller_state and query_state are not offered (scripts/bootstrap builds it; a '
+                'ROS install: apt install ros-$ROS_DISTRO-control-msgs)')
             return
-        from rclpy.action import ActionServer, CancelResponse, GoalResponse
-
         self.mf = mf
         self.runner = fg.GoalRunner(node.axes, self._start)
         self.to_check: queue.SimpleQueue = queue.SimpleQueue()     # _Goal to check
@@ -77,7 +83,6 @@ class FollowJointTrajectoryServer:
     async def _execute(self, handle):
         """Every goal: checked (off the servo thread in real time), then started and judged by
         the servo tick, which sets its end; this only awaits the result."""
-        from rclpy.task import Future
         goal = _Goal(handle, Future())
         if self.node.sim_time:              # deterministic: checked at once
             self.checked.put((goal, self._check(handle.request)))

@@ -39,8 +39,8 @@ PLANT = {'lockstep': 1, 'realtime_priority': 0}
 # the user's domain; in lockstep a stall holds up the sim time, not the loop, and the bridges'
 # copies would only slow the run. Each run has a domain of its own: Fast DDS leaves the
 # shared-memory port queues of stopped processes in /dev/shm, and a new participant on the same
-# domain and port was seen reading an earlier run's last samples from them (a stale /clock ended
-# a run at once).
+# domain and port can read an earlier run's last samples from them: a stale /clock would end the
+# run at once (doc/design_notes.md, "Shared memory left by killed processes").
 NODE_ENV = {'MOTION_CTRL_SERVO_DOMAIN': 'off'}
 
 

@@ -18,6 +18,9 @@ import threading
 import time
 
 import rclpy
+from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                              ParameterException)
+from rclpy.signals import SignalHandlerOptions
 
 from motion_ctrl.core.hardware import HardwareError
 from motion_ctrl.ros import ros_env, ros_params, servo_bus
@@ -36,8 +39,9 @@ def spin(node) -> None:
     executor = ros_env.executor()
     executor.add_node(node)
     # What start-up made (imports, the node) stays: the cyclic collector's full passes would
-    # walk it all, ~20 ms with the servo thread held (first seen ~3 s after start, a
-    # FEEDBACK_FAULT or an amplifier-watchdog trip); frozen, they walk only what the loop makes.
+    # walk it all, ~20 ms with the servo thread held, enough for a FEEDBACK_FAULT or an
+    # amplifier-watchdog trip; frozen, they walk only what the loop makes (doc/design_notes.md,
+    # "Python's own pauses in the servo thread").
     gc.collect()
     gc.freeze()
     stop_on_signals(node.get_name())
@@ -52,10 +56,10 @@ def spin(node) -> None:
             now = time.monotonic()
             if now >= pet:
                 # The process watchdog (PMAC's watchdog timer): a loop stuck WATCHDOG s ends the
-                # process from faulthandler's own thread, which needs no GIL; rclpy keeps the
-                # GIL through publish(), and a publish was seen stuck on the shared-memory port
-                # of a SIGKILLed peer with the SIGTERM never handled (the stop deadline is a
-                # Python thread). The amplifiers' command watchdog keeps the axes safe meanwhile.
+                # process from faulthandler's own thread, which needs no GIL. rclpy keeps the GIL
+                # through publish(), which can block on a SIGKILLed peer's shared-memory port:
+                # then no SIGTERM is handled and the stop deadline (a Python thread) never runs.
+                # The amplifiers' command watchdog keeps the axes safe meanwhile.
                 faulthandler.dump_traceback_later(WATCHDOG, exit=True, file=sys.stderr)
                 pet = now + WATCHDOG / 10
     finally:
@@ -72,21 +76,21 @@ def spin(node) -> None:
 
 
 # Emptied by the first SIGINT / SIGTERM once stop_on_signals ran. Not a threading.Event: a signal
-# handler must take no lock, since a second signal can run the handler again inside the first (a
-# burst of signals deadlocked a controller in Event.set; only the process watchdog ended it).
+# handler must take no lock, since a second signal can run the handler again inside the first,
+# which would then wait for the lock the outer call holds (doc/design_notes.md, "Stopping a node:
+# the deadline and the watchdog").
 _RUNNING = ['running']
 
 
 def stop_on_signals(name: str) -> None:
     """From now on SIGINT and SIGTERM only raise the stop flag that `spin` watches (and start
     the stop deadline): a signal while the node is still being made ends it as cleanly as one
-    while it spins (it was a KeyboardInterrupt traceback).
+    while it spins, without a KeyboardInterrupt traceback.
 
-    The deadline (ros_env.leave_if_stuck, STOP_DEADLINE): once in a CI run a plant given
-    SIGTERM was still there 5 s later (not reproduced in 65 tries, idle or loaded). The outputs
-    are made safe first (`shutdown_outputs`, and the plant's command watchdog behind it); what
-    is left, ROS's teardown of the node and its DDS participant, must not keep a stopped node
-    alive."""
+    The deadline (ros_env.leave_if_stuck, STOP_DEADLINE): the outputs are made safe first
+    (`shutdown_outputs`, and the plant's command watchdog behind it); what is left, ROS's
+    teardown of the node and its DDS participant, can hang and must not keep a stopped node
+    alive (doc/design_notes.md, "Stopping a node: the deadline and the watchdog")."""
     def on_signal(*_):
         try:
             _RUNNING.pop()           # (one C call: of handlers run inside each other, one goes on)
@@ -99,9 +103,6 @@ def stop_on_signals(name: str) -> None:
 
 def run(node_class, args=None) -> int:
     """Start a node; a bad parameter (from a YAML or the command line) exits 2 with one line."""
-    from rclpy.exceptions import (InvalidParameterTypeException,
-                                  InvalidParameterValueException, ParameterException)
-    from rclpy.signals import SignalHandlerOptions
     ros_env.local_discovery()
     # The loop runs on the servo bus in a process of its own; this one bridges it (issue 11).
     bridged = servo_bus.supervise(f'motion_ctrl.ros.{node_class.NODE_NAME}_node',
@@ -135,9 +136,9 @@ def run(node_class, args=None) -> int:
         what = 'hardware' if hardware else 'bad parameter'
         print(f'{node_class.__name__}: {what}{f" (from {where})" if where else ""}: '
               f'{msg}', file=sys.stderr, flush=True)
-        # Fix: the context's shutdown destroys the half-built node, and rclpy waits for its
-        # handle to be free; once in a CI run that wait never ended (a plant with an unknown
-        # axis, busy in Node.destroy_node for minutes). Give it 2 s, then leave.
+        # The context's shutdown destroys the half-built node, and rclpy's wait for its handle
+        # to be free can hang (doc/design_notes.md, "Stopping a node: the deadline and the
+        # watchdog"): it gets 2 s, then the process leaves.
         closing = threading.Thread(target=rclpy.try_shutdown, daemon=True)
         closing.start()
         closing.join(2.0)
@@ -149,8 +150,8 @@ def run(node_class, args=None) -> int:
         node.get_logger().warning(problem)
     spin(node)
     # What spin froze is collected now, the node with it (its worker threads have ended):
-    # alive at the interpreter's exit, it outlives the extension modules, and nanobind listed
-    # ruckig's objects as ~30 lines of "leaked" on every stop.
+    # alive at the interpreter's exit, it would outlive the extension modules, and nanobind
+    # would report ruckig's objects as leaked (~30 lines on every stop).
     del node
     gc.unfreeze()
     gc.collect()

@@ -5,12 +5,16 @@ source tree or install is used; SIGINT stops them (they shut down after the curr
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import pathlib
 import signal
 import subprocess
 import sys
+import time
 from typing import Any
+
+from ament_index_python.packages import get_package_share_directory
 
 from motion_ctrl.core.registers import shipped_tuning
 
@@ -22,7 +26,6 @@ def params_dir() -> pathlib.Path:
     """params/ of the source tree, else the installed share/motion_ctrl/params."""
     if REPO_PARAMS.is_dir():
         return REPO_PARAMS
-    from ament_index_python.packages import get_package_share_directory
     return pathlib.Path(get_package_share_directory('motion_ctrl')) / 'params'
 
 
@@ -38,14 +41,13 @@ def child_preexec():
     """preexec_fn of a node process: SIGINT at its default, SIGTERM when its parent dies."""
     # A process started in the background of a non-interactive shell inherits SIGINT ignored.
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-    # Fix: when the starting process dies without stop() (a killed or timed-out test run, a
-    # crashed demo) its nodes ran on as orphans, loading the machine and publishing on the
-    # domain forever. Linux: the kernel sends the node SIGTERM (a clean stop) when its parent
+    # A node must not outlive a starting process that dies without stop() (a killed or
+    # timed-out test run, a crashed demo): an orphan loads the machine and publishes on the
+    # domain for ever. Linux: the kernel sends the node SIGTERM (a clean stop) when its parent
     # dies. (The signal follows the thread that started the node: start nodes from a thread
     # that outlives them, as the demo and tests do.)
     if sys.platform.startswith('linux'):
         try:
-            import ctypes
             ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
         except (OSError, AttributeError):
             pass
@@ -214,7 +216,9 @@ DRIVE_BOOT = 60.0        # s the emulated drives may take to be heard on the bus
 def heard(bus: dict, first: int, last: int, timeout: float) -> bool:
     """Whether a frame with a CAN-ID in [first, last] (heartbeats: 701h-77Fh) comes on the bus
     `bus` (CAN_BUS's keys) within `timeout` s."""
-    import time
+    # python-can is imported here, not at the top: about 0.1 s (python -X importtime; 0.2-0.3 s
+    # on the loaded 2-core VM) that every importer of this module would pay, each node's
+    # processes (through servo_bus) and the launch file among them.
     import can
     with can.Bus(interface=bus['can_interface'], channel=bus['can_channel']) as listener:
         end = time.monotonic() + timeout

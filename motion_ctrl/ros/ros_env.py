@@ -8,6 +8,7 @@ parallel runs on one machine don't see each other, and the loopback-UDP profile 
 own processes (`loopback_udp`), so they find the nodes they start within half a second of their
 coming up. Call before rclpy.init().
 """
+import faulthandler
 import fcntl
 import itertools
 import os
@@ -39,8 +40,9 @@ def spare_domain() -> int:
     """Another ROS domain than this process's, a new one per call (cycling through 1..101): for
     runs that must not meet the rest (lockstep), and for tests that SIGKILL nodes. A killed
     participant leaves its shared-memory port behind, and a participant that later gets the
-    same port number on that domain inherits it with the dead listener's unread slots (sends
-    to it were seen dropped as "port full": service calls to the new node went unanswered)."""
+    same port number on that domain inherits it with the dead listener's unread slots: sends to
+    it are dropped as "port full", so service calls to it go unanswered (doc/design_notes.md,
+    "Shared memory left by killed processes")."""
     global _spare_base
     if _spare_base is None:          # the process's own domain, as it was at the first call
         _spare_base = int(os.environ.get('ROS_DOMAIN_ID', '1'))
@@ -67,6 +69,8 @@ def executor(context=None):
     the CPU of SingleThreaded), SingleThreaded where rclpy has no EventsExecutor (before Jazzy
     7.1.4). Drive it with spin_once: in rclpy 9.1 EventsExecutor.spin() busy-waits without
     running timers or seeing signals."""
+    # rclpy is imported here, not at the top: the tests' conftest imports this module in a
+    # `-m core` run, where ROS packages refuse to import.
     try:
         from rclpy.experimental import EventsExecutor as Executor
     except ImportError:
@@ -119,7 +123,7 @@ def clean_zombie_shm(shm_dir: str = SHM_DIR) -> int:
     Every segment and port has a lock file (`_el`/`_sl`) that its owner holds with flock while
     it lives; one nobody holds belongs to a dead process (a SIGKILL, a crash). Left behind, a
     port's named mutex can stay locked, and every process that later opens that port number
-    waits 2 s for it (seen here as nodes taking 30 s to start and exit). Files of live
+    waits 2 s for it (a node can then take tens of seconds to start and to exit). Files of live
     processes, of any run on this machine, are left alone.
     """
     try:
@@ -153,11 +157,11 @@ def _locked(path: str) -> bool:
 def leave_if_stuck(name: str, after: float, code: int = 0, why: str = 'stop') -> None:
     """Start a daemon thread that exits this process with `code` `after` s from now if it is
     still here, saying so and where every thread was (faulthandler) on stderr: ROS's teardown
-    of a node and its DDS participant (rclpy's EventsExecutor.shutdown() was seen stuck) must
-    not keep a process alive whose work is done."""
+    of a node and its DDS participant can hang (in rclpy's EventsExecutor.shutdown(), among
+    others) and must not keep a process alive whose work is done (doc/design_notes.md,
+    "Stopping a node: the deadline and the watchdog")."""
     def leave():
         time.sleep(after)
-        import faulthandler
         print(f'{name}: {why} took over {after:g} s (ROS teardown stuck); leaving without it. '
               f'Threads at that moment:', file=sys.stderr, flush=True)
         faulthandler.dump_traceback(file=sys.stderr, all_threads=True)

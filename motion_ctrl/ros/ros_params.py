@@ -10,11 +10,14 @@ import math
 import re
 from collections.abc import Callable
 
+import yaml
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
 
+import msg_defs as md
 from motion_ctrl.core.registers import shown, size_refusal
 
 _TYPES = {
@@ -58,7 +61,7 @@ def declare(node, reg, full_name: str, default=None):
             node.set_parameters([Parameter(full_name, _TYPES[reg.type][1], [])])
         return plain(node.get_parameter(full_name).value)
     value = plain(node.declare_parameter(full_name, value, desc).value)
-    # The register's own rule too (rclpy checks the closed range only: feedback_timeout 0 passed)
+    # The register's own rule too (rclpy checks the closed range only: feedback_timeout 0 passes)
     reason = reg.check(value)
     if reason:
         raise ValueError(f'{full_name.rsplit(".", 1)[0] + "." if "." in full_name else ""}'
@@ -74,10 +77,10 @@ def plain(value):
 
 
 def name_type_refusal(node, params, result):
-    """Fix (found by test_ros_nodes): rclpy refuses a value of the wrong type before any
-    on-set callback runs, with a reason that names neither the parameter nor the types
-    ("Wrong parameter type, expected '3' got '2'"); SPEC: a refusal names the parameter.
-    Rewrite that one reason; every other result is returned unchanged."""
+    """rclpy refuses a value of the wrong type before any on-set callback runs, with a reason
+    that names neither the parameter nor the types ("Wrong parameter type, expected '3' got
+    '2'"), and a refusal must name the parameter: this rewrites that one reason; every other
+    result is returned unchanged."""
     if result.successful or not result.reason.startswith('Wrong parameter type'):
         return result
     for p in params:
@@ -103,7 +106,6 @@ def section_values(files, node_name: str) -> dict:
     itself (`plant:`, `/plant:`, `/**/plant:`; not the wildcards, which rcl applies to every node
     anyway) in the params files `files`, a later file winning. A file rcl or YAML cannot read is
     left to rcl, which refuses it."""
-    import yaml
     values: dict = {}
     for f in files:
         try:
@@ -137,7 +139,6 @@ def params_files_refusal(node_name: str, args: list[str], also=()):
     on its defaults without a word. (A file rcl cannot parse is refused by rcl first.) `also`:
     other nodes whose sections this node reads too (the controller: `plant`, for `hardware:
     sim`)."""
-    import yaml
     for a, b in zip(args, args[1:]):            # launch_ros names nodes with -r __node:=...
         if a in ('-r', '--remap') and b.split(':=', 1)[0] in ('__node', '__name'):
             node_name = b.split(':=', 1)[1]
@@ -190,8 +191,6 @@ class RegisterNode(Node):
     def stream(self, msg_type, topic: str, qos=None, refresh: float = 0.0):
         """A publisher (servo QoS unless given) whose refused publishes are counted and logged,
         not raised (msg_defs.Stream; JointStateStream for JointState); `refresh`: Stream's."""
-        import msg_defs as md
-        from sensor_msgs.msg import JointState
         pub = self.create_publisher(msg_type, topic, md.SERVO_QOS if qos is None else qos)
         return (md.JointStateStream if msg_type is JointState else md.Stream)(
             pub, self._publish_refused, refresh)

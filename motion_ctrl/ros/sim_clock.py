@@ -15,9 +15,9 @@ from motion_ctrl.ros.hardware_topics import stamp_of
 # s of wall time the sim clock ticks before it runs the callbacks
 SIM_BATCH = 0.001
 # sim seconds per wall second at most: a client reading the streams (a tool placing a move's
-# status words among the joint_states samples, a recorder) keeps up; unbounded, the clock ran
-# ~14x real time and a tool's readings of a move lagged it by tens to hundreds of ms of sim
-# time, and its targets landed at times set by its own lag
+# status words among the joint_states samples, a recorder) keeps up; unbounded (~14x real time
+# here), a tool's readings of a move lag it by tens to hundreds of ms of sim time, and its
+# targets land at times set by its own lag
 MAX_SIM_SPEED = 4.0
 
 

@@ -40,8 +40,8 @@ MAX_TRAJECTORY_POINTS = {'with accelerations': 400, 'without': 1500}
 MAX_TRAJECTORY_BYTES = 1 << 20
 MAX_SCHEDULE = 60.0      # s: a target stamped further ahead is not a schedule but another clock
 # What a trajectory uses of scipy, imported before the loop runs (~0.7 s of start-up): imported
-# by the first trajectory on its thread, it held the GIL in long C calls for ~0.4 s, and both
-# loops stood still 50-105 ms (doc/design_notes.md).
+# on the trajectories thread, it would hold the GIL in long C calls for ~0.4 s and stall both
+# loops (doc/design_notes.md, "Python's own pauses in the servo thread").
 PRELOAD = ('scipy.interpolate',)
 
 

@@ -10,8 +10,19 @@ received.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
 import time
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt32
+
+import msg_defs as md
+from motion_ctrl.ros import ros_env
 
 
 def main(argv=None) -> int:
@@ -21,19 +32,8 @@ def main(argv=None) -> int:
     ap.add_argument('--linger', type=float, default=1.0, help='seconds subscribed')
     a = ap.parse_args(argv)
 
-    import faulthandler
     faulthandler.enable()            # (a crash says where: soak prints the visitor's last line)
-    from motion_ctrl.ros import ros_env
-    ros_env.local_discovery()
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.parameter_client import AsyncParameterClient
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import UInt32
-
-    import msg_defs as md
-
+    ros_env.local_discovery()        # (read by rclpy.init(), not at import)
     rclpy.init()
     node = Node(f"visitor_{os.getpid()}")
     got = {'joint_states': 0, 'status': 0}
@@ -44,8 +44,9 @@ def main(argv=None) -> int:
         return cb
     node.create_subscription(JointState, md.JOINT_STATES, count('joint_states'), 10)
     node.create_subscription(UInt32, md.status_topic(a.axis), count('status'), md.STATUS_QOS)
-    # The executor ros2cli uses (rclpy's default). With the experimental EventsExecutor of the
-    # nodes, about one visitor in 50 died of a segmentation fault in the churn test.
+    # The executor ros2cli uses (rclpy's default), not the nodes' experimental EventsExecutor,
+    # which now and then crashes a participant this short-lived (doc/design_notes.md, "The
+    # executor").
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     params = AsyncParameterClient(node, a.controller)

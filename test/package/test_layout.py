@@ -1,7 +1,8 @@
 """The rooms say what they hold (doc/architecture.md, "Layers"): the ROS shell and the tools in
-modules of at most MAX_MODULE_LINES, functions of at most MAX_FUNCTION_LINES everywhere but the
-documented exceptions, and each tool (a command of setup.py's EXECUTABLES in motion_ctrl.tools)
-importing no other tool: what tools share lives in procedures/, bags/, analysis/, plotting/."""
+modules of at most MAX_MODULE_LINES, functions of at most MAX_FUNCTION_LINES (their docstrings
+left out) everywhere but the documented exceptions, and each tool (a command of setup.py's
+EXECUTABLES in motion_ctrl.tools) importing no other tool: what tools share lives in
+procedures/, bags/, analysis/, plotting/."""
 import ast
 import pathlib
 
@@ -26,6 +27,17 @@ def _functions(tree):
     return [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]
 
 
+def _length(f) -> int:
+    """A function's lines from `def` to its end, its docstring left out (the Parameters /
+    Returns of a public function are not code)."""
+    n = f.end_lineno - f.lineno + 1
+    first = f.body[0]
+    if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+            and isinstance(first.value.value, str):
+        n -= first.end_lineno - first.lineno + 1
+    return n
+
+
 def test_no_module_of_the_shell_or_the_tools_is_over_400_lines():
     long = {str(p.relative_to(PACKAGE)): n for sub in ('ros', 'tools')
             for p in (PACKAGE / sub).rglob('*.py')
@@ -38,7 +50,7 @@ def test_no_function_is_over_60_lines_but_the_documented_exceptions():
     for p in _sources():
         for f in _functions(ast.parse(p.read_text())):
             name = f'{p.relative_to(PACKAGE)}:{f.name}'
-            n = f.end_lineno - f.lineno + 1
+            n = _length(f)
             if n > MAX_FUNCTION_LINES:
                 seen.add(name)
                 if name not in EXCEPTIONS:

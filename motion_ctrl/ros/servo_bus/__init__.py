@@ -12,12 +12,13 @@ bridge and starts the node again as a child process on the bus (INSIDE set), whi
 
 Why a domain of its own: a participant joining a domain makes every participant there send to
 its shared-memory port, and Fast DDS sends all of a participant's messages under one lock, so a
-newcomer that the scheduler holds off the CPU while it owns its port's mutex stops the sender
-(seen as 50-333 ms holes in both servo streams whenever a `ros2` command ran). rclpy keeps the
-GIL through `publish()` and a service's response, so the loop stalls with any thread of its
-process that sends to a newcomer. The loop therefore runs in a process whose only participant
+newcomer that the scheduler holds off the CPU while it owns its port's mutex stops the sender,
+both servo streams with it, for tens to hundreds of ms, past the 20 ms feedback_timeout. rclpy
+keeps the GIL through `publish()` and a service's response, so the loop stalls with any thread of
+its process that sends to a newcomer. The loop therefore runs in a process whose only participant
 is on the servo bus; the process the user started (`controller`, `plant`, `ros2 launch`) holds
-the bridge, and a tool can hold up only that.
+the bridge, and a tool can hold up only that (measured: doc/design_notes.md, "ROS tools joining
+the graph, and the servo bus").
 
 MOTION_CTRL_SERVO_DOMAIN chooses the bus: unset or `auto` (the default), the domain 50 above
 ROS_DOMAIN_ID (wrapping in 1..101, as motion_ctrl's own domains do, below Linux's ephemeral
@@ -36,7 +37,13 @@ import sys
 import threading
 import time
 
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+
 from motion_ctrl.ros import ros_env
+from motion_ctrl.ros.processes import child_preexec, source_env
+from motion_ctrl.ros.servo_bus.bridge import POLL, Bridge
 
 ENV = 'MOTION_CTRL_SERVO_DOMAIN'
 INSIDE = 'MOTION_CTRL_SERVO_PROCESS'     # set in the node's own process on the bus
@@ -62,7 +69,6 @@ def servo_domain(environ=os.environ) -> int | None:
 
 
 def servo_process_env(domain: int) -> dict:
-    from motion_ctrl.ros.processes import source_env
     return source_env() | {'ROS_DOMAIN_ID': str(domain), INSIDE: '1'}
 
 
@@ -118,7 +124,6 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
                        'a node killed on the bus can hold up the other for a second')
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
-    from motion_ctrl.ros.processes import child_preexec
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
                             env=servo_process_env(domain), preexec_fn=child_preexec)
     started.append(node)
@@ -136,8 +141,8 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
                 node.kill()
                 node.wait()
         rc = node.returncode if node.returncode >= 0 else 128 - node.returncode
-        # (its node gone, the bridge leaves with its code even if ROS's teardown hangs: seen
-        # once in eight bridges started at once)
+        # (its node gone, the bridge leaves with its code even if ROS's teardown hangs:
+        # doc/design_notes.md, "The servo bus as the default")
         ros_env.leave_if_stuck(name, STOP_WAIT_BRIDGE, rc, 'closing the bridge')
         bus.close()
     return rc
@@ -148,17 +153,12 @@ class _Bus:
 
     @classmethod
     def open(cls, domain: int, name: str, namespace: str) -> _Bus:
-        import rclpy
-        from rclpy.context import Context
         public_ctx, servo_ctx = Context(), Context()
         rclpy.init(args=[], context=public_ctx)
         rclpy.init(args=[], context=servo_ctx, domain_id=domain)
         return cls(name, namespace, public_ctx, servo_ctx)
 
     def __init__(self, name: str, namespace: str, public_ctx, servo_ctx):
-        from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
-
-        from motion_ctrl.ros.servo_bus.bridge import POLL, Bridge
         self.contexts = (public_ctx, servo_ctx)
         self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
             f'[{name}] {m}', file=sys.stderr, flush=True))
@@ -189,7 +189,6 @@ class _Bus:
             executor.spin_once(timeout_sec=0.05)
 
     def close(self) -> None:
-        import rclpy
         self.running = False         # the threads leave their executors before these go
         for t in self.threads:
             t.join(2.0)

@@ -156,9 +156,8 @@ class _Outward:
 
         A topic both nodes publish (`/rosout`, latched) is read only while wanted too: a reader
         of it here makes the other node's every log line a send to this process, and once this
-        process is SIGKILLed such a send waits on its dead shared-memory port (the plant was
-        seen held up 1 s, then 2 s, logging its amplifier fault after its controller's bridge
-        was killed)."""
+        process is SIGKILLed such a send waits on its dead shared-memory port, holding the other
+        node up for a second or more (doc/design_notes.md, "The servo bus as the default")."""
         wanted = ((self.latched and self.own is None)
                   or self.pub.get_subscription_count() > 0)
         if wanted and self.sub is None:
@@ -290,7 +289,7 @@ class Bridge:
         """The copy of `topic` onto the bus through `out`. A target message larger than the
         controller takes (msg_defs.MAX_TARGET_BYTES) is refused here, before the servo bus, as
         the controller would refuse it (once a second, with a count): a flood of them copied on
-        loaded the loop's process and stalled its link to the plant. A servo stream's copy is
+        would load the loop's process and stall its link to the plant. A servo stream's copy is
         stopped by `look` on another thread than the one that copies: a sample taken before
         is dropped."""
         what = topic.rsplit('/', 1)[-1]
@@ -310,7 +309,7 @@ class Bridge:
         """Whether a node on the user's domain that is not a bridge publishes `topic` there. A
         bridge's participant there holds `_bridge_<name>_in` beside `<name>`, and a participant's
         node names arrive together, so this does not depend on what the bus's discovery has
-        seen yet (a restarted peer's bridge was once taken for a plant of another make).
+        seen yet, and a restarted peer's bridge is not taken for a plant of another make.
         `unknown`: a publisher whose node's names are not in yet counts as foreign."""
         nodes = self.public.get_node_names_and_namespaces()
         bridges = {(n[len('_bridge_'):-len('_in')], ns) for n, ns in nodes
