@@ -51,6 +51,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable
 
+import canopen
+from canopen.emcy import EmcyError
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
 from motion_ctrl.canopen import busload
 from motion_ctrl.canopen import cia402 as c
 from motion_ctrl.canopen.objects import (DRIVE_EDS, ENCODER_EDS, ENCODER_TPDO1, PDO_NOT_VALID,
@@ -228,7 +232,6 @@ class CanopenHardware(HardwareInterface):
         reason = busload.refusal(1.0 / self.period, self.bitrate, self.frames)
         if reason:
             raise HardwareError(f'canopen: servo_rate {reason}')
-        import canopen
         network = canopen.Network()
         network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
         try:
@@ -249,7 +252,6 @@ class CanopenHardware(HardwareInterface):
             raise
 
     def _node(self, network, node_id: int, eds: str, a: str, what: str):
-        import canopen
         try:
             node = canopen.RemoteNode(node_id, eds)
         except Exception as e:
@@ -277,7 +279,6 @@ class CanopenHardware(HardwareInterface):
         return node, device
 
     def _sdo_read(self, node, a: str, what: str, index: int, sub: int, name: str) -> int:
-        from canopen.sdo import SdoAbortedError, SdoCommunicationError
         try:
             return _raw(node, index, sub)
         except SdoCommunicationError:
@@ -290,7 +291,6 @@ class CanopenHardware(HardwareInterface):
 
     def _sdo_write(self, node, a: str, what: str, index: int, sub: int, value: int,
                    name: str) -> None:
-        from canopen.sdo import SdoAbortedError, SdoCommunicationError
         try:
             _set_raw(node, index, sub, value)
         except SdoCommunicationError:
@@ -702,7 +702,6 @@ _NMT = {0: 'boot-up', 4: 'STOPPED', 5: 'OPERATIONAL', 127: 'PRE-OPERATIONAL'}
 
 
 def _describe(code: int) -> str:
-    from canopen.emcy import EmcyError
     return EmcyError(code, 0, b'', 0.0).get_desc() or 'manufacturer specific'
 
 

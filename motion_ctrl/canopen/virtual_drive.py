@@ -33,11 +33,16 @@ What a drive on the bus does, emulated:
 """
 from __future__ import annotations
 
+import ctypes
 import math
+import multiprocessing
 import os
+import queue
+import signal
 import struct
 import threading
 import time
+import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -446,7 +451,6 @@ class VirtualDrives:
                 what = f'frame 0x{msg.arbitration_id:03X}: {e!r}'
                 if what not in self._failed:
                     self._failed.add(what)
-                    import traceback
                     self._log('error', f'virtual drives: {what} (once):\n'
                                        f'{traceback.format_exc()}')
 
@@ -536,7 +540,6 @@ class DrivesProcess:
 
     def __init__(self, axes: dict[str, DriveConfig], interface: str, channel: str,
                  bitrate: int = 1_000_000, substep_rate: float = 20000.0) -> None:
-        import multiprocessing
         ctx = multiprocessing.get_context('spawn')     # (never fork a process with ROS threads)
         self.names = list(axes)
         n = len(axes)
@@ -595,7 +598,6 @@ class DrivesProcess:
 
     def logs(self) -> list[tuple[str, str]]:
         """The drives' log lines since the last call."""
-        import queue
         lines = []
         while True:
             try:
@@ -608,9 +610,6 @@ def _serve(axes, interface, channel, bitrate, substep_rate, floats, ints, comman
            started) -> None:
     """The drives' process: VirtualDrives in real time, their state shared every SHARE_PERIOD,
     commands applied as they come; ends with `stop` or with its parent."""
-    import ctypes
-    import queue
-    import signal
     try:                            # (Linux: SIGKILL when the parent dies)
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)
     except (OSError, AttributeError):

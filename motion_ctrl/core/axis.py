@@ -76,7 +76,21 @@ EVENTS_KEPT: Final = 100_000
 
 class Axis(AxisCommands):
     """One servo axis: state, configuration, the servo tick and the status word; the
-    commands are AxisCommands'."""
+    commands are AxisCommands'.
+
+    Parameters
+    ----------
+    name : str
+        The axis's name: it leads every refusal and fault reason (`x: ...`).
+    registers : dict, optional
+        Register values over the table's defaults (core.registers AXIS_REGISTERS, SI units);
+        applied by `configure` (ValueError naming the refused ones).
+    servo_period : float
+        The nominal servo period [s] (1 / servo_rate): IT smoothing, the stall rule
+        (STALL_PERIODS) and the test signal's rate are taken on it.
+    record_events : bool
+        Keep (time [s], Status) of every change of the status word in `events`.
+    """
 
     def __init__(self, name: str, registers: dict | None = None, servo_period: float = 1e-3,
                  record_events: bool = False):
@@ -122,7 +136,20 @@ class Axis(AxisCommands):
 
     # -- configuration --------------------------------------------------------------------------
     def configure(self, values: dict) -> None:
-        """Apply a complete, validated register set at a tick boundary (all or nothing)."""
+        """Apply a complete, validated register set at a tick boundary (all or nothing).
+
+        Parameters
+        ----------
+        values : dict
+            Every register of AXIS_REGISTERS by name, SI units (m, m/s, m/s², V, s, counts/m);
+            validated as a whole by `refusals`, then kept as `r`. A feedback change on a homed
+            axis re-homes the command (it holds where it is).
+
+        Raises
+        ------
+        ValueError
+            The refusals, `<axis>.<register>: why` joined by '; '; nothing changed.
+        """
         reasons = refusals(values)
         if reasons:
             raise ValueError('; '.join(f'{self.name}.{r}' for r in reasons))
@@ -227,7 +254,15 @@ class Axis(AxisCommands):
 
     def home(self, motor_counts: float, load_counts: float) -> None:
         """First feedback: take the encoders as they are and close the loop there (unless a
-        fault came first: then it stays open until reset and enable)."""
+        fault came first: then it stays open until reset and enable).
+
+        Parameters
+        ----------
+        motor_counts : float
+            The motor encoder [counts] (motor_counts_per_m of them a metre of slide).
+        load_counts : float
+            The load (linear) encoder [counts] (load_counts_per_m of them a metre).
+        """
         self.motor_pos = motor_counts / self._motor_cpm
         self.load_pos = load_counts / self._load_cpm
         self.backlash.reset(self.motor_pos)
@@ -278,6 +313,24 @@ class Axis(AxisCommands):
         0.1 m/s, 1 ms is 40 counts) and jitter the output. So the error is taken against the
         command at the sample's time, cmd − cmd_velocity × age (a PMAC reads its encoders at
         the servo interrupt: age 0).
+
+        Parameters
+        ----------
+        dt : float
+            Time since the previous tick [s]: the servo period, more after a late tick (beyond
+            STALL_PERIODS periods the motion is planned again from the measured state).
+        motor_counts, load_counts : float
+            The newest encoder sample [counts]; the first tick homes on it (`home`).
+        sample_dt : float or None
+            Time this sample covers [s]: None = dt, 0 = no new sample (see above).
+        age : float
+            Age of the sample at this tick [s] (see above).
+
+        Returns
+        -------
+        float
+            The amplifier command [V]: the servo law's (within ±output_limit, Ixx69), with a
+            running test signal added; 0 while the loop is open or when a fault trips it.
         """
         self.time += dt
         if not self.homed:

@@ -163,7 +163,18 @@ class AxisCommands:
 
     def start_refusal(self, what: str):
         """Why a new motion (`what`: 'target', 'jog', 'trajectory') cannot start now, or None:
-        a fault, an open loop, a STOP or ESTOP still decelerating."""
+        a fault, an open loop, a STOP or ESTOP still decelerating.
+
+        Parameters
+        ----------
+        what : str
+            The motion, as the reason names it ('target', 'jog', 'trajectory', 'excitation').
+
+        Returns
+        -------
+        str or None
+            The reason, `<axis>: ...`; None when the motion may start.
+        """
         return self._refuse_unless_ready() or self._refuse_below_stop(what)
 
     def _cancel(self, why: str) -> None:
@@ -184,7 +195,23 @@ class AxisCommands:
         first and the signal starts once MOTION_AT_VELOCITY; at the end the jog decelerates to
         rest. Refused when its nominal travel (ramps, the settling time and the signal) does
         not fit in the budget or in the soft limits; at run time the budget keeps the braking
-        distance in hand."""
+        distance in hand.
+
+        Parameters
+        ----------
+        excitation : core.excitation signal
+            One value [V] a servo tick; its sample_rate [Hz] must be the servo rate.
+        budget : float
+            Slide travel allowed around the start [m], > 0.
+        base_velocity : float
+            Jog velocity under the signal [m/s]; 0: the signal at rest.
+
+        Returns
+        -------
+        CommandResult
+            Accepted (the signal starts on the next tick, or at velocity), or refused with
+            the reason: not ready, moving, a run in progress, a bad budget or rate, no room.
+        """
         reason = self.start_refusal('excitation')
         if reason:
             return refused(reason)
@@ -222,7 +249,18 @@ class AxisCommands:
         """Why register `changes` cannot apply to the move in progress, or None: a feedback
         change (it re-homes the command and would drop the move), and soft limits that the
         planned travel crosses, are refused while the axis moves. (A jog's travel is its
-        present segment: a limit ahead of it is watched each tick and braked onto.)"""
+        present segment: a limit ahead of it is watched each tick and braked onto.)
+
+        Parameters
+        ----------
+        changes : dict
+            The registers about to change {name: value} (SI units; soft limits in m).
+
+        Returns
+        -------
+        str or None
+            The reason, `<axis>.<register>: ...`; None when the changes may apply now.
+        """
         if not (self.enabled and self.profile.moving):
             return None
         fb = changes.get('feedback', self.r['feedback'])
@@ -246,6 +284,23 @@ class AxisCommands:
         return None
 
     def move_to(self, target) -> CommandResult:   # (any input: refused unless a number)
+        """Point-to-point move to `target` (RMP / PMAC move, Galil PA), time-optimal within
+        max_velocity, max_acceleration and max_jerk (Galil SP / AC, PMAC Ixx16..21); during a
+        move it re-plans from the present command. Starts the settling of a position move.
+
+        Parameters
+        ----------
+        target : float
+            Position in the user's frame [m], within [soft_limit_min, soft_limit_max]; anything
+            but a finite real number is refused.
+
+        Returns
+        -------
+        CommandResult
+            Accepted, or refused with the reason: not a finite number, outside the soft limits
+            (LIMIT raised; a move in progress goes on), a fault, an open loop, a STOP / ESTOP
+            decelerating, or ruckig's refusal (the previous move goes on).
+        """
         if not _number(target) or not math.isfinite(target):
             return refused(f'{self.name}: target {target!r} is not a finite number')
         lo, hi = self.config.soft_limit_min, self.config.soft_limit_max
@@ -285,7 +340,20 @@ class AxisCommands:
         """Follow this axis's share of a multi-axis trajectory (PMAC PVT; `Profile.follow`),
         in the user frame. The trajectory was checked as a whole (motion_ctrl.core.trajectory); the
         soft limits are checked here again, as for any target. Settling, corrections, stops and
-        faults treat it as a move to its last point."""
+        faults treat it as a move to its last point.
+
+        Parameters
+        ----------
+        path : core.trajectory.AxisPath
+            This axis's share (`at(t)` [m, m/s, m/s²], duration [s], end and extrema [m]), in
+            the user's frame, starting at `path_state`.
+
+        Returns
+        -------
+        CommandResult
+            Accepted, or refused with the reason: not ready, a STOP / ESTOP decelerating, the
+            path outside the soft limits (LIMIT raised), or the profile's refusal.
+        """
         reason = self.start_refusal('trajectory')
         if reason:
             return refused(reason)
@@ -309,6 +377,22 @@ class AxisCommands:
         return ACCEPTED
 
     def jog(self, velocity) -> CommandResult:     # (any input, as move_to)
+        """Velocity move (Galil JG, PMAC jog) at max_acceleration (jerk-limited if max_jerk >
+        0); 0 decelerates to rest (MOTION_DONE). The command stops at a soft limit ahead.
+
+        Parameters
+        ----------
+        velocity : float
+            [m/s], |velocity| <= max_velocity (above it refused, as Galil refuses SP; not
+            clamped); anything but a finite real number is refused.
+
+        Returns
+        -------
+        CommandResult
+            Accepted, or refused with the reason: not a finite number, above max_velocity, a
+            fault, an open loop, a STOP / ESTOP decelerating, the command at the soft limit it
+            heads for (LIMIT raised), or ruckig's refusal.
+        """
         if not _number(velocity) or not math.isfinite(velocity):
             return refused(f'{self.name}: velocity {velocity!r} is not a finite number')
         reason = self._refuse_unless_ready() or self._refuse_below_stop('jog')
@@ -344,6 +428,20 @@ class AxisCommands:
         return ACCEPTED
 
     def stop(self, kind: str = 'stop') -> CommandResult:
+        """Decelerate to rest (RMP STOP / E-STOP): STOPPED or ESTOPPED + MOTION_DONE at rest,
+        braking onto a soft limit rather than past it; what was scheduled is cancelled.
+
+        Parameters
+        ----------
+        kind : str
+            'stop' at stop_deceleration, 'estop' at estop_deceleration [m/s²].
+
+        Returns
+        -------
+        CommandResult
+            Accepted, or refused with the reason: another kind, a fault, an open loop, a STOP
+            during an ESTOP (precedence), or ruckig's refusal.
+        """
         if kind not in ('stop', 'estop'):
             return refused(f"{self.name}: stop kind must be 'stop' or 'estop', got {kind!r}")
         reason = self._refuse_unless_ready()
@@ -367,7 +465,13 @@ class AxisCommands:
         return ACCEPTED
 
     def abort(self) -> CommandResult:
-        """Open the loop at once, output 0 (RMP ABORT)."""
+        """Open the loop at once, output 0 (RMP ABORT).
+
+        Returns
+        -------
+        CommandResult
+            Always accepted: ABORTED + MOTION_DONE, the loop open until `enable(True)`.
+        """
         self._open_loop()
         self._cancel('ABORT')
         self.settling.abort()
@@ -375,6 +479,20 @@ class AxisCommands:
         return ACCEPTED
 
     def enable(self, on: bool) -> CommandResult:
+        """Close or open the position loop (PMAC amplifier enable, Galil SH / MO).
+
+        Parameters
+        ----------
+        on : bool
+            True closes the loop at the present position (bumpless); False opens it (output
+            0, MOTION_DONE) and cancels what was scheduled.
+
+        Returns
+        -------
+        CommandResult
+            Accepted, or (closing only) refused with the reason: a fault or an amplifier
+            fault not reset, or no encoder feedback yet.
+        """
         if not on:
             self._open_loop()
             self._cancel('disable')
@@ -397,7 +515,13 @@ class AxisCommands:
         """Clear faults (fatal following error, feedback fault, overspeed, amplifier fault) and
         LIMIT; on an open loop also ABORTED / STOPPED / ESTOPPED. The loop stays open (enable
         closes it); a closed loop and its motion are not touched. A fault whose cause persists
-        comes back at the next tick."""
+        comes back at the next tick.
+
+        Returns
+        -------
+        CommandResult
+            Always accepted.
+        """
         self._faults = 0
         self._sticky = 0
         self.drive_fault_reason = ''
@@ -409,7 +533,15 @@ class AxisCommands:
     def correct(self) -> CommandResult:
         """Run the sampled dual-loop correction now (Galil #CORRECT): with feedback sampled, or
         once on demand with feedback motor. A loop closed on the load encoder (load, dual) has
-        nothing to correct: refused."""
+        nothing to correct: refused.
+
+        Returns
+        -------
+        CommandResult
+            Accepted (moves until the load error is below correction_tolerance [m], at most
+            correction_max_moves), or refused with the reason: not ready, a loop on the load
+            encoder, or a move in progress.
+        """
         reason = self._refuse_unless_ready()
         if reason:
             return refused(reason)

@@ -43,6 +43,24 @@ class Config:
 
     @classmethod
     def of(cls: type[_C], values: dict) -> _C:
+        """This configuration from a register set, validated by the table (`refusals`).
+
+        Parameters
+        ----------
+        values : dict
+            {register: value}, SI units as in core.registers; every register this class reads
+            must be there (KeyError otherwise), others are ignored.
+
+        Returns
+        -------
+        Config
+            An instance of the class it is called on, derived fields computed.
+
+        Raises
+        ------
+        ValueError
+            The table's refusals of those registers, joined by '; '.
+        """
         return _of(cls, values)
 
     @staticmethod
@@ -52,7 +70,18 @@ class Config:
 
     @classmethod
     def of_checked(cls: type[_C], values: dict) -> _C:
-        """`of` for a set that `refusals` has accepted already."""
+        """`of` for a set that `refusals` has accepted already (no validation again).
+
+        Parameters
+        ----------
+        values : dict
+            {register: value}, accepted by `refusals` as a whole.
+
+        Returns
+        -------
+        Config
+            An instance of the class it is called on.
+        """
         return _of(cls, values, checked=True)
 
 
@@ -90,7 +119,8 @@ class LawConfig(Config):
 
     @staticmethod
     def derive(values: dict) -> dict:
-        from motion_ctrl.core.dual_loop import feedback_encoders    # (it imports this module)
+        # (here: circular, core.dual_loop imports core.config for CorrectionConfig, defaults)
+        from motion_ctrl.core.dual_loop import feedback_encoders
         mode = values['mode']
         on_load = feedback_encoders(values['feedback'])[0] == 'load'
         return {'position_mode': mode.startswith('position'), 'pid': mode.endswith('pid'),
@@ -186,7 +216,8 @@ class AxisConfig(Config):
 
     @staticmethod
     def derive(values: dict) -> dict:
-        from motion_ctrl.core.dual_loop import feedback_encoders    # (it imports this module)
+        # (here: circular, core.dual_loop imports core.config for CorrectionConfig, defaults)
+        from motion_ctrl.core.dual_loop import feedback_encoders
         feedback = values['feedback']
         motor_side = feedback_encoders(feedback)[0] == 'motor'
         cpm = values['motor_counts_per_m' if motor_side else 'load_counts_per_m']

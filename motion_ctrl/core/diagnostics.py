@@ -84,6 +84,7 @@ class LoopStats:
 def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
                         extra: dict | None = None):
     """extra: more values of the servo loop's status (name -> number)."""
+    # (here: a ROS message package; a core module imports no ROS at load: test_core_without_ros)
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     arr = DiagnosticArray()
     arr.header.stamp = stamp

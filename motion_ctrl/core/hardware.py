@@ -81,7 +81,15 @@ class AxisIO:
         """An encoder sample stamped `stamp` [s]. One not newer than the sample in hand is
         dropped: two paths to the loop (a plant's stream and a bridge's copy of it, a hop later)
         deliver a sample twice and out of order. A stamp more than CLOCK_RESTART older is a new
-        clock (a restarted lockstep plant), taken."""
+        clock (a restarted lockstep plant), taken.
+
+        Parameters
+        ----------
+        motor, load : int
+            The motor and load encoders [counts].
+        stamp : float
+            The time the drive sampled them [s], on the loop's clock.
+        """
         held = self.stamp
         if held - CLOCK_RESTART < stamp <= held:          # (never with nothing held: nan)
             return
@@ -94,7 +102,13 @@ class AxisIO:
 class HardwareInterface:
     """One backend's I/O for the axes of a servo loop (`io`, one AxisIO per axis). Subclasses
     override the `on_*` steps of the lifecycle and `read` / `write`; the lifecycle's order is
-    kept here."""
+    kept here.
+
+    Parameters
+    ----------
+    axes : iterable of str
+        The axes' names, in the servo loop's order; each gets an AxisIO in `io`.
+    """
 
     #: the `hardware` parameter's value that selects the backend
     kind = ''
@@ -106,14 +120,21 @@ class HardwareInterface:
 
     # -- lifecycle ----------------------------------------------------------------------------
     def configure(self) -> None:
-        """Check and set up what the backend talks to; raises HardwareError."""
+        """Check and set up what the backend talks to (unconfigured -> inactive).
+
+        Raises
+        ------
+        HardwareError
+            One line naming the device and the object at fault; or not unconfigured.
+        """
         if self.state != UNCONFIGURED:
             raise HardwareError(f'{self.kind}: configure in state {self.state}')
         self.on_configure()
         self.state = INACTIVE
 
     def activate(self) -> None:
-        """Start the cyclic exchange (the first `read` may follow)."""
+        """Start the cyclic exchange (the first `read` may follow): configures first when
+        unconfigured (its HardwareError passes), nothing when active already."""
         if self.state == UNCONFIGURED:
             self.configure()
         if self.state == INACTIVE:
@@ -127,26 +148,47 @@ class HardwareInterface:
             self.on_deactivate()
 
     def on_configure(self) -> None:
+        """The backend's configure step (`configure` calls it once); raise HardwareError."""
         pass
 
     def on_activate(self) -> None:
+        """The backend's activate step: start the exchange (NMT start, subscriptions, ...)."""
         pass
 
     def on_deactivate(self) -> None:
+        """The backend's deactivate step: every output 0 V, every amplifier disabled."""
         pass
 
     # -- the cycle ----------------------------------------------------------------------------
     def read(self, now: float) -> None:
-        """Bring each AxisIO's state up to date: the newest sample, the faults."""
+        """Bring each AxisIO's state up to date: the newest sample, the faults.
+
+        Parameters
+        ----------
+        now : float
+            The servo cycle's time [s], on the loop's clock (ServoLoop.cycle's `now`).
+        """
         raise NotImplementedError
 
     def write(self, now: float) -> None:
         """Send each commanded AxisIO's output; an amplifier follows `enabled` (a drive with
-        an enable sequence runs it on a change; a torque-mode amplifier on 0 V needs none)."""
+        an enable sequence runs it on a change; a torque-mode amplifier on 0 V needs none).
+
+        Parameters
+        ----------
+        now : float
+            The servo cycle's time [s], as `read`'s.
+        """
         raise NotImplementedError
 
     def reset(self, axis: str) -> None:
-        """`<axis>/reset`: clear what faulted the drive (a drive with a fault state resets it)."""
+        """`<axis>/reset`: clear what faulted the drive (a drive with a fault state resets it).
+
+        Parameters
+        ----------
+        axis : str
+            The axis whose drive is reset.
+        """
 
 
 class NoHardware(HardwareInterface):

@@ -89,6 +89,18 @@ class Profile:
       target_velocity  velocity of the current velocity move, else None
       done, at_target, moving  (properties)
       duration         planned duration of the current ruckig segment (s)
+
+    Positions are in the caller's frame (an axis's loop frame, m); velocities m/s,
+    accelerations m/s², times s.
+
+    Parameters
+    ----------
+    position : float
+        Where the profile starts, at rest [m].
+    config : ProfileConfig, optional
+        Limits and smoothing (Galil SP / AC / IT); None: the register table's defaults.
+    servo_period : float
+        The servo period T [s] that Galil IT's pole is per.
     """
     # (set by _reset, which __init__ calls)
     raw_position: float
@@ -141,6 +153,19 @@ class Profile:
         New limits apply from the next re-plan (move_to/jog/stop): a move in
         progress is not re-planned behind the caller's back. The smoothing
         time constant applies from the next step.
+
+        Parameters
+        ----------
+        config : ProfileConfig
+            max_velocity [m/s], max_acceleration [m/s²], max_jerk [m/s³] (0: trapezoidal),
+            smoothing (Galil IT, 0.004..1; 1 = off).
+        servo_period : float
+            The servo period T [s], finite and > 0.
+
+        Raises
+        ------
+        ValueError
+            servo_period not finite and > 0.
         """
         if not (_finite(servo_period) and servo_period > 0):
             raise ValueError(f'servo_period must be finite and > 0, got {servo_period!r}')
@@ -163,6 +188,18 @@ class Profile:
         max_velocity / max_acceleration override the configured limits for this move only
         (the axis uses them to turn a jog into a stop at a soft limit: cruise no faster than
         the jog, brake at the deceleration available). On a refusal nothing changes.
+
+        Parameters
+        ----------
+        target : float
+            The position to stop at [m].
+        max_velocity, max_acceleration : float, optional
+            This move's limits [m/s, m/s²], finite and > 0; None: the configured ones.
+
+        Raises
+        ------
+        ValueError
+            A non-finite target or limit, or ruckig's refusal (the previous move kept).
         """
         if not _finite(target):
             raise ValueError(f'move target must be finite, got {target!r}')
@@ -178,7 +215,20 @@ class Profile:
         """Follow `path` (its `at(t) -> (p, v, a)` from t = 0 to `path.duration`, ending at rest
         at `path.end`; `path.extrema` its (min, max) position), shifted by `offset` (the loop's
         frame). The caller starts it from the present state (`at(0)` is the raw state now:
-        the trajectory's implicit first point), so nothing jumps."""
+        the trajectory's implicit first point), so nothing jumps.
+
+        Parameters
+        ----------
+        path : Path
+            The path [m, m/s, m/s² against s]; duration [s] finite and > 0.
+        offset : float
+            Added to the path's positions [m] (the loop frame's offset).
+
+        Raises
+        ------
+        ValueError
+            A duration not finite and > 0.
+        """
         duration = float(path.duration)
         if not (_finite(duration) and duration > 0):
             raise ValueError(f'path duration must be finite and > 0, got {duration!r}')
@@ -194,7 +244,17 @@ class Profile:
         self.target_velocity = None
 
     def following(self, path: Path) -> bool:
-        """`path` is the segment running now (not yet ended, stopped or replaced)."""
+        """`path` is the segment running now (not yet ended, stopped or replaced).
+
+        Parameters
+        ----------
+        path : Path
+            A path given to `follow`.
+
+        Returns
+        -------
+        bool
+        """
         return self._path is path and not self._raw_done
 
     @property
@@ -208,6 +268,16 @@ class Profile:
 
         The velocity is clamped to +-max_velocity (ruckig's velocity interface
         does not enforce max_velocity on the target itself).
+
+        Parameters
+        ----------
+        velocity : float
+            The velocity to reach [m/s], at max_acceleration (jerk-limited if max_jerk > 0).
+
+        Raises
+        ------
+        ValueError
+            A non-finite velocity, or ruckig's refusal (the previous move kept).
         """
         if not _finite(velocity):
             raise ValueError(f'jog velocity must be finite, got {velocity!r}')
@@ -223,6 +293,16 @@ class Profile:
 
         Used for STOP and ESTOP, so it needs no configure(): without it the
         stop is trapezoidal. kind is 'stop' until at rest, then 'idle'.
+
+        Parameters
+        ----------
+        deceleration : float
+            [m/s²], finite and > 0 (stop_deceleration, estop_deceleration).
+
+        Raises
+        ------
+        ValueError
+            A deceleration not finite and > 0, or ruckig's refusal.
         """
         if not (_finite(deceleration) and deceleration > 0):
             raise ValueError(f'stop deceleration must be finite and > 0, got {deceleration!r}')
@@ -235,7 +315,13 @@ class Profile:
         self.target_velocity = None
 
     def hold(self, position: float) -> None:
-        """Reset to rest at `position` without motion (abort, enable, fault)."""
+        """Reset to rest at `position` without motion (abort, enable, fault).
+
+        Parameters
+        ----------
+        position : float
+            [m], finite (else ValueError).
+        """
         if not _finite(position):
             raise ValueError(f'hold position must be finite, got {position!r}')
         self._reset(float(position))
@@ -248,7 +334,18 @@ class Profile:
         target for it: a start speed towards the target that cannot stop there is cut to one
         that can. A move, jog or stop only; a path keeps its time base (the caller holds its
         time instead). Returns False, with nothing changed, when there is nothing to re-plan or
-        ruckig refuses the new start."""
+        ruckig refuses the new start.
+
+        Parameters
+        ----------
+        position, velocity : float
+            The measured state to start from [m, m/s], in the profile's frame.
+
+        Returns
+        -------
+        bool
+            True when the segment was planned again.
+        """
         if self.kind not in ('position', 'velocity', 'stop') or not (
                 _finite(position) and _finite(velocity)):
             return False
@@ -297,7 +394,13 @@ class Profile:
 
     # -------------------------------------------------------------------- step
     def step(self, dt: float) -> None:
-        """Advance the profile by dt seconds (dt may differ from tick to tick)."""
+        """Advance the profile by dt seconds (dt may differ from tick to tick).
+
+        Parameters
+        ----------
+        dt : float
+            [s], finite and >= 0 (else ValueError); 0 changes nothing.
+        """
         if not 0.0 <= dt < _INF:
             raise ValueError(f'dt must be finite and >= 0, got {dt!r}')
         if dt == 0.0:
@@ -361,7 +464,13 @@ class Profile:
 
     def raw_extrema(self):
         """(min, max) raw position over the current segment, from the state it was planned
-        in to its end (ruckig's exact extrema); a jog cruises on beyond its segment."""
+        in to its end (ruckig's exact extrema); a jog cruises on beyond its segment.
+
+        Returns
+        -------
+        tuple[float, float]
+            (min, max) [m].
+        """
         if self._raw_done:
             return self.raw_position, self.raw_position
         if self._path is not None:

@@ -200,7 +200,13 @@ class ServoLaw:
 
     def configure(self, config: LawConfig) -> None:
         """New registers from the next tick. The notch keeps its history (unity DC gain before
-        and after); a new mode starts its law from rest (bumpless from 0)."""
+        and after); a new mode starts its law from rest (bumpless from 0).
+
+        Parameters
+        ----------
+        config : LawConfig
+            The law's registers (PMAC Ixx30..39, 63, 67..69; RMC deadband), validated.
+        """
         self.notch.configure(*config.notch)
         if config.mode != self.config.mode:
             self.reset()
@@ -226,7 +232,33 @@ class ServoLaw:
         """One servo tick. act_pos/act_vel: the position-loop encoder; vel_loop_vel/acc: the
         velocity-loop encoder (same as act_* unless dual loop). window_shift [m]: taken off the
         position error that the at-rest windows judge (anti-hunting, ratioing, the breakaway
-        aid): half a count with window_centre count_middle. Returns the output [V]."""
+        aid): half a count with window_centre count_middle. Returns the output [V].
+
+        Parameters
+        ----------
+        dt : float
+            Time the encoder sample covers [s] (the integrator's and I-PD's step), > 0.
+        cmd_pos, cmd_vel, cmd_acc : float
+            The command [m, m/s, m/s²] in the position-loop encoder's frame (screw
+            compensation included); cmd_vel, cmd_acc feed kvff, kaff and friction_ff (Ixx68).
+        act_pos, act_vel : float
+            The position-loop encoder [m, m/s] (FE = cmd_pos − act_pos; velocity modes use
+            act_vel).
+        vel_loop_vel, vel_loop_acc : float
+            The velocity-loop encoder [m/s, m/s²]: kd's input in position / velocity modes.
+        target_stopped : bool
+            The command is at rest: anti-hunting, deadband ratioing and the breakaway aid apply.
+        half_count : float
+            Half a count of the position-loop encoder [m] (AxisConfig.half_count): RMC's
+            anti-hunting window when deadband_tolerance is smaller.
+        window_shift : float
+            [m], as above.
+
+        Returns
+        -------
+        float
+            The output [V]: loop sum, notch, output deadband, clipped at ±output_limit (Ixx69).
+        """
         c = self.config
         if c.position_mode:
             error = cmd_pos - act_pos

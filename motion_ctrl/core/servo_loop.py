@@ -90,6 +90,29 @@ class Tick:
 
 
 class ServoLoop:
+    """The servo loop of one controller: its axes ticked together, in the stages of the module
+    docstring, by `cycle` (or `tick`) at each servo interrupt; commands and register sets come
+    in between ticks and take effect in the order they came.
+
+    Parameters
+    ----------
+    axes : dict[str, Axis]
+        The axes by name, ticked in this order.
+    values : dict[str, dict]
+        Per axis, the registers applied (each Axis's register set); kept up to date by
+        `apply_staged`.
+    period : float
+        The servo period [s] (1 / servo_rate, PMAC's servo clock): the first tick's dt.
+    feedback_timeout : float
+        Servo time without a new encoder sample before FEEDBACK_FAULT [s] (register
+        feedback_timeout).
+    sim_time : bool
+        Time is a simulation's: a loop closes at its first sample (else after STREAM_SETTLE).
+    hardware : HardwareInterface, optional
+        The backend `cycle` reads and writes (core.hardware), activated by the caller; None:
+        NoHardware, samples given by `feedback`.
+    """
+
     def __init__(self, axes: dict[str, Axis], values: dict[str, dict], period: float,
                  feedback_timeout: float, sim_time: bool = False,
                  hardware: HardwareInterface | None = None):
@@ -112,7 +135,17 @@ class ServoLoop:
     # -- inputs ---------------------------------------------------------------------------------
     def feedback(self, axis: str, motor: int, load: int, stamp: float) -> None:
         """An encoder sample of `axis` stamped `stamp` [s], from outside the hardware's `read`
-        (AxisIO.sample: an older or repeated one is dropped)."""
+        (AxisIO.sample: an older or repeated one is dropped).
+
+        Parameters
+        ----------
+        axis : str
+            The axis.
+        motor, load : int
+            The motor and load encoders [counts].
+        stamp : float
+            The time the sample was taken [s], on the loop's clock.
+        """
         self.hardware.io[axis].sample(motor, load, stamp)
 
     @property
@@ -121,18 +154,47 @@ class ServoLoop:
         return {c.name: c.waited for c in self.channels}
 
     def reset(self, axis: str):
-        """`<axis>/reset`: the drive's fault reset, then the axis's (Axis.reset)."""
+        """`<axis>/reset`: the drive's fault reset, then the axis's (Axis.reset).
+
+        Returns
+        -------
+        CommandResult
+            Axis.reset's: always accepted.
+        """
         self.hardware.reset(axis)
         return self.axes[axis].reset()
 
     def current(self, axis: str) -> dict:
-        """The axis's registers as they will be at the next tick."""
+        """The axis's registers as they will be at the next tick.
+
+        Returns
+        -------
+        dict
+            {register: value}: those applied, with those staged over them.
+        """
         return self.values[axis] | self.staged.get(axis, {})
 
     def stage(self, axis: str, changes: dict) -> None:
+        """Register changes of `axis`, accepted already (validated by the caller), to apply
+        together at the next tick or before the next command (`apply_staged`).
+
+        Parameters
+        ----------
+        axis : str
+            The axis.
+        changes : dict
+            {register: value}, SI units; merged over what is staged already.
+        """
         self.staged.setdefault(axis, {}).update(changes)
 
     def apply_staged(self) -> list[tuple[str, str]]:
+        """Apply the staged register sets now, each axis's all or nothing (Axis.configure).
+
+        Returns
+        -------
+        list[tuple[str, str]]
+            Log lines (level, text): a set the core refused, not applied.
+        """
         log = []
         for axis, changes in self.staged.items():
             merged = self.values[axis] | changes
@@ -145,11 +207,34 @@ class ServoLoop:
         return log
 
     def schedule(self, stamp: float, axis: str, target: float) -> None:
-        """A target to start at the first tick at or after `stamp` [s] (a coordinated start)."""
+        """A target to start at the first tick at or after `stamp` [s] (a coordinated start).
+
+        Parameters
+        ----------
+        stamp : float
+            When to start [s], on the loop's clock.
+        axis : str
+            The axis.
+        target : float
+            Position in the user's frame [m] (Axis.move_to; refused then, it is logged).
+        """
         self.scheduled.append((stamp, axis, target, self.axes[axis].command_epoch))
 
     def unschedule(self, axes, why: str) -> list[tuple[str, str]]:
-        """Drop the scheduled targets of `axes`; the log lines saying so."""
+        """Drop the scheduled targets of `axes`; the log lines saying so.
+
+        Parameters
+        ----------
+        axes : collection of str
+            The axes whose scheduled targets are dropped.
+        why : str
+            What cancelled them, for the log.
+
+        Returns
+        -------
+        list[tuple[str, str]]
+            ('warning', text), one per target dropped.
+        """
         log = [('warning', f'{a}: scheduled target {t:g} m (stamped {stamp:.3f} s) cancelled '
                            f'by {why}') for stamp, a, t, _ in self.scheduled if a in axes]
         self.scheduled = [x for x in self.scheduled if x[1] not in axes]
@@ -160,13 +245,30 @@ class ServoLoop:
         or at the next `flush`; of those posted before then the latest of each axis wins and the
         others are never tried. A stream of targets, however fast, then costs one re-plan per
         axis per tick (the input budget of a per-tick input; a drive's cyclic setpoint is the
-        same: one per cycle, the last written)."""
+        same: one per cycle, the last written).
+
+        Parameters
+        ----------
+        axis : str
+            The axis.
+        value : float
+            Target position in the user's frame [m], or with `jog` a velocity [m/s].
+        jog : bool
+            `value` is a jog velocity (Axis.jog), not a target (Axis.move_to).
+        """
         self.pending[axis] = (jog, value)
 
     def flush(self) -> tuple[list[tuple[str, str]], list[tuple[str, str, str]]]:
         """Start what was posted (move, jog) now: (log lines, refused as (what, axis, reason)).
         The tick does this first; a caller with another command (stop, a register set, a
-        schedule) does it before, so that commands take effect in the order they came."""
+        schedule) does it before, so that commands take effect in the order they came.
+
+        Returns
+        -------
+        tuple[list[tuple[str, str]], list[tuple[str, str, str]]]
+            Log lines (level, text), and the refused as (what, axis, reason), what
+            'target_position' or 'target_velocity'.
+        """
         pending = self.pending
         self.pending = {}
         log: list[tuple[str, str]] = []
@@ -184,17 +286,51 @@ class ServoLoop:
     def move(self, targets: dict) -> list[tuple[str, str]]:
         """Start moves now, after any register set accepted before them (commands take effect in
         the order they came: a feedback change applied at the next tick would re-home the
-        command and drop a move started meanwhile). Returns (axis, refusal) of those refused."""
+        command and drop a move started meanwhile). Returns (axis, refusal) of those refused.
+
+        Parameters
+        ----------
+        targets : dict
+            {axis: target position in the user's frame [m]} (Axis.move_to).
+
+        Returns
+        -------
+        list[tuple[str, str]]
+            (axis, reason) of each target refused.
+        """
         return self._start(Axis.move_to, targets)
 
     def jog(self, velocities: dict) -> list[tuple[str, str]]:
-        """Start jogs now, after any register set accepted before them (as `move`)."""
+        """Start jogs now, after any register set accepted before them (as `move`).
+
+        Parameters
+        ----------
+        velocities : dict
+            {axis: jog velocity [m/s]} (Axis.jog).
+
+        Returns
+        -------
+        list[tuple[str, str]]
+            (axis, reason) of each jog refused.
+        """
         return self._start(Axis.jog, velocities)
 
     def excite(self, axis: str) -> CommandResult:
         """Start the test signal `axis`'s excitation_* registers describe (Axis.excite), after
         any register set accepted before (a client sets the registers, then calls
-        <axis>/excite). A refusal changes nothing."""
+        <axis>/excite). A refusal changes nothing.
+
+        Parameters
+        ----------
+        axis : str
+            The axis; its excitation_* registers (signal, amplitude [V], band [Hz], duration
+            [s], excitation_budget [m], excitation_velocity [m/s]) describe the run.
+
+        Returns
+        -------
+        CommandResult
+            Axis.excite's, or refused with the reason the registers make no signal.
+        """
         if self.staged:
             self.apply_staged()
         r = self.values[axis]
@@ -217,13 +353,40 @@ class ServoLoop:
     # -- coordinated trajectories (PMAC PVT): the coordinate system ------------------------------
     def prepare(self, spec: dict):
         """Check and build the trajectory of `spec` from the axes' commanded state now
-        (CoordinateSystem.prepare: may run off the servo thread)."""
+        (CoordinateSystem.prepare: may run off the servo thread).
+
+        Parameters
+        ----------
+        spec : dict
+            msg_defs.read_joint_trajectory's dict: names, times [s], and per point positions
+            [m], velocities [m/s], accelerations [m/s²] (empty where a point leaves one out).
+
+        Returns
+        -------
+        Prepared or str
+            The trajectory and each axis's path (core.coordination.Prepared), or the refusal.
+        """
         return self.coords.prepare(spec, self.values)
 
     def trajectory(self, job, stamp: float | None = None, now: float | None = None):
         """Start (or, with a `stamp` after `now`, schedule) a multi-axis trajectory, after any
         register set accepted before it (CoordinateSystem.start); returns the refusal, or
-        None. A refused trajectory changes nothing."""
+        None. A refused trajectory changes nothing.
+
+        Parameters
+        ----------
+        job : dict or Prepared
+            A spec (as `prepare` takes) or `prepare`'s result (built again if the axes moved).
+        stamp : float, optional
+            When to start [s], on the loop's clock; None or not after `now`: at once.
+        now : float, optional
+            The loop's time now [s].
+
+        Returns
+        -------
+        str or None
+            The refusal, or None (started or scheduled).
+        """
         if self.staged:
             self.apply_staged()
         return self.coords.start(job, self.values, stamp, now)
@@ -231,7 +394,18 @@ class ServoLoop:
     # -- the cycle ------------------------------------------------------------------------------
     def cycle(self, now: float) -> Tick | None:
         """One servo cycle at time `now` [s]: the hardware reads, the loop ticks, the hardware
-        writes. None when time did not advance (nothing written)."""
+        writes. None when time did not advance (nothing written).
+
+        Parameters
+        ----------
+        now : float
+            The servo interrupt's time [s], on the servo grid (whole periods of the clock).
+
+        Returns
+        -------
+        Tick or None
+            What the tick produced (outputs [V], status changes, log lines, refusals).
+        """
         hardware = self.hardware
         hardware.read(now)
         tick = self.tick(now)
@@ -241,7 +415,18 @@ class ServoLoop:
 
     # -- the tick -------------------------------------------------------------------------------
     def tick(self, now: float) -> Tick | None:
-        """One servo tick at time `now` [s]; None when time did not advance (sim time paused)."""
+        """One servo tick at time `now` [s]; None when time did not advance (sim time paused).
+
+        Parameters
+        ----------
+        now : float
+            The tick's time [s]; dt is the time since the last tick (the period at the first).
+
+        Returns
+        -------
+        Tick or None
+            As `cycle`; the outputs are left in each AxisIO for the hardware's `write`.
+        """
         dt = self.period if self.last_tick is None else _ns(now - self.last_tick)
         self.last_tick = now
         if dt <= 0.0:

@@ -58,10 +58,12 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 if TYPE_CHECKING:
-    from scipy.interpolate import BPoly, PPoly
-# scipy's interpolate / optimize / spatial are imported where used (~0.5 s): what does not build
-# a trajectory does not pay for them. The controller node imports them before its loop runs
-# (ros.targets.PRELOAD): imported on its first trajectory, they stalled the loop.
+    from scipy.interpolate import BPoly, PPoly      # (annotations only)
+# scipy's interpolate / optimize / spatial are imported where used (python -X importtime, the
+# servo loop loaded: interpolate 0.5-0.7 s, optimize and spatial ~0.4 s each alone): what does
+# not build a trajectory does not pay for them (core.coordination, and so ServoLoop, imports this
+# module). The controller node imports them before its loop runs (ros.targets.PRELOAD):
+# imported on its first trajectory, they stalled the loop.
 
 __all__ = ['AxisLimits', 'AxisPath', 'AxisState', 'Points', 'Trajectory', 'check', 'circle',
            'rounded_square', 'contour_error', 'START_TOLERANCE', 'REST_TOLERANCE',
@@ -230,6 +232,7 @@ def _points_in_limits_reason(names, P: np.ndarray, limits) -> str | None:
 def _interpolant(t, P, V, A, start: Sequence[AxisState]):
     """(kind, knot times, position polynomial of all axes, offset of point 0 among the knots):
     the axis's state is the knot at t=0 (inserted before point 0, or point 0 itself)."""
+    # (here: scipy.interpolate costs 0.5-0.7 s at load, -X importtime: see the top)
     from scipy.interpolate import CubicHermiteSpline, CubicSpline
     s = np.array(start, dtype=float)          # (axes, 3): p, v, a
     if t[0] > 0:
@@ -261,6 +264,7 @@ def _quintic_hermite(x, P, V, A) -> BPoly:
     servo executor), and its result is the same (test_trajectory compares the two).
     On [0, h], p(0) = c0, p'(0) = 5 (c1 - c0) / h, p''(0) = 20 (c2 - 2 c1 + c0) / h², and the
     mirror image at h."""
+    # (here: scipy.interpolate costs 0.5-0.7 s at load, -X importtime: see the top)
     from scipy.interpolate import BPoly
     h = np.diff(x)[:, None]
     p0, v0, a0, p1, v1, a1 = P[:-1], V[:-1], A[:-1], P[1:], V[1:], A[1:]
@@ -325,6 +329,7 @@ def _motion_reason(names, x, ppolys, positions, offset, limits) -> str | None:
 
 def _plan(names, times, positions, velocities, accelerations, start, limits):
     """Trajectory or the reason it is refused (see the module docstring for the order)."""
+    # (here: scipy.interpolate costs 0.5-0.7 s at load, -X importtime: see the top)
     from scipy.interpolate import PPoly
     reason = _names_reason(names, limits)
     if reason:
@@ -630,6 +635,7 @@ def rounded_square(center: Sequence[float], side: float, corner_radius: float, s
     total, s_of_t = _ramp_profile(length, speed, ramp_time)
     junctions = [j * (run + math.pi * r / 2) + d for j in range(4) for d in (0.0, run)]
     junctions = [a for a in np.mod(np.array(junctions) - (half - r), length) if 0 < a < length]
+    # (here: scipy.optimize costs 0.4-0.6 s at load, 0.15-0.2 s after interpolate)
     from scipy.optimize import brentq
     times = [brentq(lambda t, a=a: float(s_of_t(t)[0]) - a, 0.0, total, xtol=1e-15)
              for a in junctions]
@@ -653,6 +659,7 @@ def contour_error(path_xy, actual_xy) -> np.ndarray:
     act = np.asarray(actual_xy, dtype=float)
     if path.ndim != 2 or path.shape[1] != 2 or act.ndim != 2 or act.shape[1] != 2:
         raise ValueError('path_xy and actual_xy must be (n, 2) arrays')
+    # (here: scipy.spatial costs 0.4 s at load, -X importtime; interpolate loads it too)
     from scipy.spatial import cKDTree
     tree = cKDTree(path)
     d0 = tree.query(act)[0]

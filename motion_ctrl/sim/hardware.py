@@ -34,7 +34,22 @@ from motion_ctrl.sim.plant import SlidePlant
 
 
 class SimHardware(HardwareInterface):
-    """One SlidePlant per axis, stepped by the servo loop."""
+    """One SlidePlant per axis, stepped by the servo loop.
+
+    Parameters
+    ----------
+    axes : iterable of str
+        The axes' names: a slide each.
+    period : float
+        The servo period [s]: each `write` integrates the slides this long.
+    plant : dict[str, dict], optional
+        Per axis, plant registers over the table's defaults (core.registers PLANT_PARAMETERS,
+        SI units), validated at `configure` (HardwareError `sim: <axis>.<reason>`).
+    substep_rate : float
+        The physics' integration rate [Hz] (SlidePlant).
+    latency_ticks : int
+        Transport delay of the outputs [whole ticks], 0: none.
+    """
 
     kind = 'sim'
 
@@ -69,12 +84,28 @@ class SimHardware(HardwareInterface):
 
     def configure_plant(self, axis: str, changes: dict) -> None:
         """New plant registers for one axis, at a tick boundary (validated together; raises
-        ValueError and changes nothing on a refusal)."""
+        ValueError and changes nothing on a refusal).
+
+        Parameters
+        ----------
+        axis : str
+            The axis whose slide changes.
+        changes : dict
+            {plant register: value}, SI units (PLANT_PARAMETERS).
+        """
         self.plants[axis].configure(**changes)
         self.params[axis].update(changes)
 
     # -- the cycle ----------------------------------------------------------------------------
     def read(self, now: float) -> None:
+        """Every slide's encoders [counts] into its AxisIO, stamped `now` [s]; ticks skipped
+        since the last `write` are integrated first on the held commands.
+
+        Parameters
+        ----------
+        now : float
+            The servo cycle's time [s], on the servo grid.
+        """
         t = self.time
         if t != t or abs(now - t) < 1e-9:   # the first read; or on time (ROS stamps: whole ns)
             t = self.time = now
@@ -89,6 +120,14 @@ class SimHardware(HardwareInterface):
             io.stamp = t
 
     def write(self, now: float) -> None:
+        """Each commanded axis's output [V] to its amplifier (after `latency_ticks`), then every
+        slide integrated one servo period through its command watchdog.
+
+        Parameters
+        ----------
+        now : float
+            The servo cycle's time [s], as `read`'s.
+        """
         T = self.period
         delayed = self.latency_ticks > 0
         i = 0
@@ -108,7 +147,13 @@ class SimHardware(HardwareInterface):
     # -- what the slides are doing (the ROS shell publishes it as the plant node does) ---------
     def truth(self) -> tuple[list[float], list[float]]:
         """Positions and velocities [m, m/s] of every slide: motor then load, axis by axis
-        (the order of plant_states: `<axis>_motor`, `<axis>_load`)."""
+        (the order of plant_states: `<axis>_motor`, `<axis>_load`).
+
+        Returns
+        -------
+        tuple[list[float], list[float]]
+            (positions [m], velocities [m/s]), two entries an axis.
+        """
         pos: list[float] = []
         vel: list[float] = []
         for _, p in self._slides:
@@ -119,9 +164,21 @@ class SimHardware(HardwareInterface):
         return pos, vel
 
     def applied(self) -> list[float]:
-        """The output each amplifier applied in the last integration [V]."""
+        """The output each amplifier applied in the last integration [V].
+
+        Returns
+        -------
+        list[float]
+            One an axis [V], clipped at amplifier_limit.
+        """
         return [p.volts for _, p in self._slides]
 
     def tripped(self) -> list[bool]:
-        """Per axis: the amplifier's command watchdog held the output at 0 V."""
+        """Per axis: the amplifier's command watchdog held the output at 0 V.
+
+        Returns
+        -------
+        list[bool]
+            One an axis: True when it tripped (command_timeout) in the last integration.
+        """
         return [p.tripped for _, p in self._slides]

@@ -38,6 +38,25 @@ class Trace:
 
 
 class Harness:
+    """A controller's servo loop on simulated slides, stepped tick by tick (see the module
+    docstring); the loops are closed at the slides' start before the first tick.
+
+    Parameters
+    ----------
+    registers : dict, optional
+        Axis registers over the table's defaults (AXIS_REGISTERS, SI units), for every axis.
+    plant : dict, optional
+        Plant registers over the table's defaults (PLANT_PARAMETERS, SI units), every slide.
+    servo_period : float
+        The servo period [s].
+    latency_ticks : int
+        Transport delay of the outputs [whole ticks] (encoder → command over DDS).
+    record : bool
+        Keep a per-tick `trace` (Trace) of the first axis.
+    axes : tuple of str
+        The axes' names, a slide each; `axis`, `plant` and the trace are the first's.
+    """
+
     def __init__(self, registers: dict | None = None, plant: dict | None = None,
                  servo_period: float = 1e-3, latency_ticks: int = 0, record: bool = True,
                  axes=('x',)):
@@ -58,9 +77,18 @@ class Harness:
 
     @property
     def time(self) -> float:
+        """The simulation's time [s]: ticks run × servo period."""
         return self.ticks * self.T
 
     def tick(self, disturbance=None) -> None:
+        """One servo cycle (ServoLoop.cycle on the sim hardware), recorded in `trace`.
+
+        Parameters
+        ----------
+        disturbance : callable, optional
+            `disturbance(harness)`, run after the cycle (a push on the slide, a register
+            change, a fault injected).
+        """
         tick = self.loop.cycle(self.ticks * self.T)
         self.ticks += 1
         if disturbance:
@@ -80,7 +108,22 @@ class Harness:
 
     def run(self, seconds: float, until=None, disturbance=None) -> bool:
         """Run for `seconds`, or until `until(harness)` is true; returns whether it became true.
-        `disturbance(harness)`, if given, runs after every tick (as in `tick`)."""
+        `disturbance(harness)`, if given, runs after every tick (as in `tick`).
+
+        Parameters
+        ----------
+        seconds : float
+            How long to run [s] (rounded to whole servo periods).
+        until : callable, optional
+            `until(harness) -> bool`, tested after each tick.
+        disturbance : callable, optional
+            As `tick`'s.
+
+        Returns
+        -------
+        bool
+            `until` became true (False without one).
+        """
         n = round(seconds / self.T)
         for _ in range(n):
             self.tick(disturbance)
@@ -89,7 +132,25 @@ class Harness:
         return False
 
     def move(self, target: float, timeout: float = 3.0):
-        """Command a move and run until MOTION_DONE; returns seconds to MOTION_DONE or None."""
+        """Command a move and run until MOTION_DONE; returns seconds to MOTION_DONE or None.
+
+        Parameters
+        ----------
+        target : float
+            The first axis's target in its user frame [m] (Axis.move_to).
+        timeout : float
+            Servo time to wait for MOTION_DONE [s].
+
+        Returns
+        -------
+        float or None
+            Servo time from the command to MOTION_DONE [s]; None when the timeout passed.
+
+        Raises
+        ------
+        ValueError
+            The move was refused (its reason).
+        """
         ok, reason = self.axis.move_to(target)
         if not ok:
             raise ValueError(reason)
@@ -99,5 +160,16 @@ class Harness:
         return self.time - start if done else None
 
     def load_error_counts(self, target: float) -> float:
-        """True slide error from `target` in linear encoder counts."""
+        """True slide error from `target` in linear encoder counts.
+
+        Parameters
+        ----------
+        target : float
+            [m].
+
+        Returns
+        -------
+        float
+            (slide position − target) × load_counts_per_m [counts], unquantised.
+        """
         return (self.plant.x_l - target) * self.plant.load_counts_per_m

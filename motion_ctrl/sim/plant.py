@@ -32,7 +32,8 @@ from __future__ import annotations
 import math
 from typing import Final
 
-from motion_ctrl.core.registers import PLANT_PARAMETERS, axis_defaults, plant_consistency
+from motion_ctrl.core.registers import (PLANT_AXIS, PLANT_PARAMETERS, axis_defaults,
+                                        plant_consistency)
 
 TWO_PI: Final = 2.0 * math.pi
 # Sticking window of the Karnopp friction model: below this speed a mass may stick.
@@ -119,7 +120,16 @@ def _substeps(n: int, h: float, x_m: float, v_m: float, x_l: float, v_l: float, 
 
 
 class SlidePlant:
-    """One axis of the backlash slide. `step(volts, dt)` advances the physics by dt seconds."""
+    """One axis of the backlash slide. `step(volts, dt)` advances the physics by dt seconds.
+
+    Parameters
+    ----------
+    substep_rate : float
+        The integration rate [Hz]: a step of dt is ceil(dt · substep_rate) Euler substeps.
+    **params
+        Plant registers over the table's defaults (core.registers PLANT_PARAMETERS, SI units);
+        validated as `configure` does (ValueError).
+    """
 
     # (substep_rate unannotated: mypyc 2.4 fails on an annotated default before **params)
     def __init__(self, substep_rate=20000.0, **params) -> None:
@@ -139,8 +149,18 @@ class SlidePlant:
         self.tripped = True           # output held at 0 V by the watchdog in the last cycle
 
     def configure(self, **changes) -> None:
-        """Change parameters (validated together; nothing changes if one is refused)."""
-        from motion_ctrl.core.registers import PLANT_AXIS
+        """Change parameters (validated together; nothing changes if one is refused).
+
+        Parameters
+        ----------
+        **changes
+            {plant register: value}, SI units (PLANT_PARAMETERS).
+
+        Raises
+        ------
+        ValueError
+            An unknown register, a value its row refuses, or the rules among them.
+        """
         new = dict(self.params)
         for name, value in changes.items():
             if name not in PLANT_AXIS:
@@ -202,7 +222,13 @@ class SlidePlant:
         return self.x_m + self.pitch_error(self.x_m) - self.x_l
 
     def encoder_counts(self):
-        """(motor counts, load counts), floored as a quadrature counter reads them."""
+        """(motor counts, load counts), floored as a quadrature counter reads them.
+
+        Returns
+        -------
+        tuple[int, int]
+            The motor and linear encoders [counts].
+        """
         return self.motor_count(), self.load_count()
 
     def motor_count(self) -> int:
@@ -213,7 +239,14 @@ class SlidePlant:
 
     # -- the amplifier's command watchdog ------------------------------------------------------
     def command(self, volts: float) -> None:
-        """A command arrived: held (zero-order) until the next one, and the watchdog re-armed."""
+        """A command arrived: held (zero-order) until the next one, and the watchdog re-armed.
+
+        Parameters
+        ----------
+        volts : float
+            The amplifier input [V] (clipped at ±amplifier_limit when applied; a non-finite
+            one applies 0 V).
+        """
         self.commanded = volts
         self.command_age = 0.0
 
@@ -236,6 +269,14 @@ class SlidePlant:
         held up by its machine must not cut the output of a live controller whose commands
         wait in its queue (the controller's feedback_timeout is counted the same way). Counted
         in plant time, so a lockstep run (a command every cycle) stays deterministic.
+
+        Parameters
+        ----------
+        dt : float
+            The cycle's length [s].
+        cycle : float, optional
+            The nominal cycle [s]: the watchdog counts at most two of them for a late one;
+            None: dt as it is.
         """
         # (1 ns slack: five 1 ms cycles add up to 5 ms, not to a hair less)
         self.tripped = self.command_age >= self._command_timeout - 1e-9
@@ -248,7 +289,17 @@ class SlidePlant:
     # -- integration --------------------------------------------------------------------------
     def step(self, volts: float, dt: float, braking: bool = False) -> None:
         """Advance the physics by dt with `volts` on the amplifier input (no watchdog);
-        `braking`: the dynamic brake is closed."""
+        `braking`: the dynamic brake is closed.
+
+        Parameters
+        ----------
+        volts : float
+            The amplifier input [V], clipped at ±amplifier_limit; a non-finite one is 0 V.
+        dt : float
+            [s]; integrated in ceil(dt · substep_rate) substeps.
+        braking : bool
+            The windings shorted through the brake resistor (dynamic_brake).
+        """
         lim = self._limit
         if not -lim <= volts <= lim:  # (a nan fails this test too)
             volts = 0.0 if not math.isfinite(volts) else lim if volts > 0.0 else -lim
