@@ -1,4 +1,5 @@
-"""Loop timing statistics and the /diagnostics message (diagnostic_msgs/DiagnosticArray).
+"""Loop timing statistics, the servo loop's part of /diagnostics (the message is
+motion_ctrl.ros.diagnostics).
 
 The servo timer is measured, not trusted: rcl timers skip missed periods instead of queueing
 them, so the achieved rate, the period jitter and the skipped ticks (overruns) are counted from
@@ -9,8 +10,6 @@ from __future__ import annotations
 from array import array
 
 import numpy as np
-
-from msg_defs.status import Status
 
 
 class LoopStats:
@@ -79,55 +78,3 @@ class LoopStats:
         self.n = self.nw = self.na = 0
         self.feedback_wait_max = 0.0
         self.ticks_without_sample = 0
-
-
-def diagnostics_message(stamp, node_name: str, stats: LoopStats, axes: dict,
-                        extra: dict | None = None):
-    """extra: more values of the servo loop's status (name -> number)."""
-    # (here: a ROS message package; a core module imports no ROS at load: test_core_without_ros)
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    arr = DiagnosticArray()
-    arr.header.stamp = stamp
-    loop = DiagnosticStatus(name=f'{node_name}: servo loop', hardware_id=node_name)
-    s = stats.summary()
-    nominal = 1.0 / stats.nominal
-    if s and s['rate_hz'] >= 0.99 * nominal:
-        loop.level, loop.message = DiagnosticStatus.OK, f'{s["rate_hz"]:.1f} Hz'
-    elif s:
-        loop.level, loop.message = DiagnosticStatus.WARN, (
-            f'{s["rate_hz"]:.1f} Hz, below 99 % of {nominal:g} Hz')
-    else:
-        loop.level, loop.message = DiagnosticStatus.WARN, 'no ticks yet'
-    loop.values = [KeyValue(key='nominal_rate_hz', value=f'{nominal:g}')] + [
-        KeyValue(key=k, value=f'{v:.6g}') for k, v in (s | (extra or {})).items()]
-    arr.status.append(loop)
-    for name, axis in axes.items():
-        st = DiagnosticStatus(name=f'{node_name}: axis {name}', hardware_id=name)
-        faults = axis.status & (Status.FOLLOWING_ERROR_FATAL | Status.FEEDBACK_FAULT
-                                | Status.OVERSPEED)
-        drive = axis.drive_fault_reason
-        hunting = axis.hunting
-        st.level = DiagnosticStatus.ERROR if faults or drive else \
-            DiagnosticStatus.WARN if hunting.hunting else DiagnosticStatus.OK
-        st.message = (f'faulted: {Status(faults)!r}' if faults else
-                      f'amplifier fault: {drive}' if drive else
-                      f'hunting: {hunting.describe(axis.loop_counts_per_m)}' if hunting.hunting
-                      else 'enabled' if axis.enabled else 'disabled')
-        st.values = [KeyValue(key='mode', value=axis.r['mode']),
-                     KeyValue(key='feedback', value=axis.r['feedback']),
-                     # the gains the loop runs with (applied, not just accepted)
-                     KeyValue(key='kp', value=repr(axis.r['kp'])),
-                     KeyValue(key='ki', value=repr(axis.r['ki'])),
-                     KeyValue(key='kd', value=repr(axis.r['kd'])),
-                     KeyValue(key='enabled', value=str(axis.enabled)),
-                     KeyValue(key='status', value=f'0x{int(axis.status):05x}'),
-                     KeyValue(key='following_error_m', value=f'{axis.following_error:.3e}'),
-                     KeyValue(key='output_v', value=f'{axis.output:.3f}'),
-                     # core.hunting: output reversals at rest without settling
-                     KeyValue(key='hunting', value=str(hunting.hunting)),
-                     KeyValue(key='output_reversals_at_rest', value=str(hunting.reversals)),
-                     KeyValue(key='hunting_period_s', value=f'{hunting.period:.3f}'),
-                     KeyValue(key='hunting_amplitude_counts',
-                              value=f'{hunting.amplitude * axis.loop_counts_per_m:.2f}')]
-        arr.status.append(st)
-    return arr

@@ -47,7 +47,7 @@ from motion_ctrl.ros.sim_clock import SimClock
 from motion_ctrl.ros.targets import (MAX_SCHEDULE, MAX_TARGET_NAMES, MAX_TRAJECTORY_POINTS,
                                      TargetInputs)
 from motion_ctrl.core.axis import Axis
-from motion_ctrl.core.diagnostics import diagnostics_message
+from motion_ctrl.ros.diagnostics import diagnostics_message
 from motion_ctrl.core.feedback_sync import FeedbackSync
 from motion_ctrl.core.servo_loop import ServoLoop
 from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
