@@ -45,8 +45,8 @@ def test_the_loop_closes_after_the_stream_has_run_its_settling_time():
 def test_a_kp_set_is_what_the_loop_pushes_with_from_the_next_tick():
     """`ros2 param set /controller x.kp`: the node stages it (as here) and from the next tick
     the axis pushes harder by exactly the new gain times its following error (the other terms
-    are the same: at rest, the slide held 10 counts off). test_ros_nodes' test_set_kp_is_applied
-    checks the node stages it; this, that the law runs with it."""
+    are the same: at rest, the slide held 10 counts off). test_ros_parameters'
+    test_set_kp_is_applied checks the node stages it; this, that the law runs with it."""
     def outputs(kp_factor):
         loop = _loop()
         _run(loop, 0.0, 1.0)

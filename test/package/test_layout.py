@@ -34,7 +34,7 @@ def _length(f) -> int:
     first = f.body[0]
     if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
             and isinstance(first.value.value, str):
-        n -= first.end_lineno - first.lineno + 1
+        n -= (first.end_lineno or first.lineno) - first.lineno + 1
     return n
 
 

@@ -1,4 +1,4 @@
-"""Node processes start and stop as a user expects: SIGTERM (and SIGINT, see test_ros_nodes.py)
+"""Node processes start and stop as a user expects: SIGTERM (and SIGINT, see test_ros_topics.py)
 ends them cleanly, and a bad parameter file ends the node at once with one readable line.
 """
 from __future__ import annotations
