@@ -195,6 +195,8 @@ def test_a_flood_of_bad_targets_is_logged_once_a_second(slide, axis, case):
     assert sent >= 0.9 * rate * 5.0, sent
     assert 1 <= len(log) <= 6, '\n'.join(log)
     assert all(refusal in ln for ln in log), '\n'.join(log)
+    # refused before the servo bus, by the node's bridge: off the loop's thread
+    assert all('bridge: ' in ln for ln in log), '\n'.join(log)
     assert any('more refused in the last' in ln for ln in log), '\n'.join(log)
     assert flooded, 'no /diagnostics during the flood'
     p.assert_loop_running()

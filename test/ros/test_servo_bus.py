@@ -5,7 +5,11 @@ import pytest
 
 pytest.importorskip('rclpy')
 
+from rclpy.serialization import serialize_message  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+
 from motion_ctrl.ros import servo_bus  # noqa: E402
+from motion_ctrl.ros.refusals import malformed_target  # noqa: E402
 from motion_ctrl.ros.servo_bus.bridge import STARTUP, Bridge  # noqa: E402
 
 
@@ -75,3 +79,20 @@ def test_a_stream_published_by_a_node_off_the_bus_is_foreign():
     assert Bridge._foreign_publisher(bridge(('plant', '/'), nodes=user_side[:2] + [('plant', '/')]),
                                      '/encoders')
     assert Bridge._foreign_publisher(bridge(('plant', '/'), ('drive', '/x')), '/encoders')
+
+
+@pytest.mark.parametrize('what, msg, reason', [
+    ('target_position', dict(name=['x'], position=[float('nan')]),
+     "target_position refused: non-finite position for ['x']"),
+    ('target_velocity', dict(name=['x', 'y'], velocity=[0.01]),
+     "target_velocity refused: velocity has 1 entries for 2 names ['x', 'y']"),
+    ('target_position', dict(name=['x', 'x'], position=[0.0, 0.0]),
+     "target_position refused: duplicate joint names ['x', 'x']"),
+    ('target_position', dict(name=['x', 'no_such_axis'], position=[0.0, 0.0]), None),
+    ('target_velocity', dict(name=['x'], velocity=[0.01]), None)])
+def test_the_bridge_refuses_a_target_no_axis_could_take(what, msg, reason):
+    """What the bridge stops before the servo bus (a NaN target flood no longer reaches the
+    loop's thread); an unknown axis is the controller's to judge."""
+    assert malformed_target(what, serialize_message(JointState(**msg))) == reason
+    assert malformed_target(what, b'\x00\x01\x00\x00garbage').startswith(
+        f'{what} refused: not a JointState')

@@ -17,8 +17,8 @@ with the same interface, by reading the node's endpoints from the servo bus's gr
   of the bus's own stream too: it reaches the loop a hop late and twice, and the loop drops a
   sample older than the one it holds (core.servo_loop.ServoLoop.feedback); once only bridges
   publish it there, the copy stops. A target message larger than the controller takes
-  (msg_defs.MAX_TARGET_BYTES) is refused here, before the bus, and logged as the controller
-  logs its refusals (ros.refusals);
+  (msg_defs.MAX_TARGET_BYTES), or malformed whatever the axes (NaN, lengths), is refused here,
+  before the bus, and logged as the controller logs its refusals (ros.refusals);
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
   unchanged) is answered by calling the node's service and returning its response. An action is
   three services and two topics under `<name>/_action/`, mirrored as such (its goal ids
@@ -46,7 +46,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 
 import msg_defs as md
-from motion_ctrl.ros.refusals import RefusalLog, too_large
+from motion_ctrl.ros.refusals import RefusalLog, malformed_target, too_large
 
 SERVO_TOPICS = frozenset({'/' + md.ENCODERS, '/' + md.COMMAND, md.CLOCK})
 POLL = 0.1                   # s between looks for readers on the user's side
@@ -287,18 +287,25 @@ class Bridge:
 
     def _copy_in(self, topic: str, out):
         """The copy of `topic` onto the bus through `out`. A target message larger than the
-        controller takes (msg_defs.MAX_TARGET_BYTES) is refused here, before the servo bus, as
+        controller takes (msg_defs.MAX_TARGET_BYTES), or one it refuses whichever its axes
+        (refusals.malformed_target: NaN, lengths), is refused here, before the servo bus, as
         the controller would refuse it (once a second, with a count): a flood of them copied on
-        would load the loop's process and stall its link to the plant. A servo stream's copy is
+        would take the loop's thread a message at a time (a NaN target at 1 kHz: 792-922 Hz
+        before, 405-662 Hz during, doc/performance.md). A servo stream's copy is
         stopped by `look` on another thread than the one that copies: a sample taken before
         is dropped."""
         what = topic.rsplit('/', 1)[-1]
         gate = what in (md.TARGET_POSITION, md.TARGET_VELOCITY)
 
         def copy(data: bytes) -> None:
-            if gate and len(data) > md.MAX_TARGET_BYTES:
-                self.refusals.refused(topic, 'bridge: ' + too_large(what, len(data)))
-                return
+            if gate:
+                if len(data) > md.MAX_TARGET_BYTES:
+                    self.refusals.refused(topic, 'bridge: ' + too_large(what, len(data)))
+                    return
+                reason = malformed_target(what, data)
+                if reason:
+                    self.refusals.refused(topic + ':malformed', 'bridge: ' + reason)
+                    return
             try:
                 out.publish(data)
             except InvalidHandle:       # (the copy stopped meanwhile)
