@@ -24,7 +24,9 @@ ros_env.private_domain()
 
 def _compiled_stale() -> list[str]:
     """Modules whose source changed after scripts/bootstrap compiled them (setup.py COMPILED):
-    the tree would run the old code. The extension module wins the import over its source."""
+    the tree would run the old code. The extension module wins the import over its source. And
+    those not compiled at all (unless MOTION_CTRL_COMPILE=0): a build that failed removed them,
+    and the tree would run plain Python, slower, until the next change of a package file."""
     stale = []
     for base, _, files in os.walk(os.path.join(REPO_ROOT, 'motion_ctrl')):
         for f in files:
@@ -32,14 +34,28 @@ def _compiled_stale() -> list[str]:
                 src = os.path.join(base, f.split('.')[0] + '.py')
                 if os.path.getmtime(src) > os.path.getmtime(os.path.join(base, f)):
                     stale.append(os.path.relpath(src, REPO_ROOT))
+    if os.environ.get('MOTION_CTRL_COMPILE', '1') != '0':
+        missing = [src for src in _compiled_sources() if not any(pathlib.Path(REPO_ROOT).glob(
+            src.removesuffix('.py') + '.*.so'))]
+        if missing:         # (bootstrap's stamp says the package is built: it was, once)
+            pathlib.Path(REPO_ROOT, '.venv', '.package.stamp').unlink(missing_ok=True)
+        stale += missing
     return stale
+
+
+def _compiled_sources() -> list[str]:
+    """setup.py's COMPILED: the modules mypyc compiles."""
+    import ast
+    setup = ast.parse(pathlib.Path(REPO_ROOT, 'setup.py').read_text())
+    return next(ast.literal_eval(n.value) for n in setup.body if isinstance(n, ast.Assign)
+                and getattr(n.targets[0], 'id', '') == 'COMPILED')
 
 
 _STALE = _compiled_stale()
 if _STALE:
     # (scripts/test bootstraps first; this is for a bare `pytest` after an edit)
-    print(f'conftest: {", ".join(_STALE)} changed since compiled: scripts/bootstrap',
-          file=sys.stderr)
+    print(f'conftest: {", ".join(_STALE)} changed since compiled, or not compiled: '
+          'scripts/bootstrap', file=sys.stderr)
     import subprocess
     subprocess.run([os.path.join(REPO_ROOT, 'scripts', 'bootstrap')], check=True)
 
