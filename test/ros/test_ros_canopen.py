@@ -1,12 +1,12 @@
 """`hardware: canopen` over ROS, across processes (issue 26): the controller the CANopen master
 of `virtual_drive` (an emulated CiA 402 drive, and a CiA 406 encoder node, on the slide) on
-python-can's udp_multicast bus, inside a network namespace made for the run
-(processes.private_network: only a loopback, with a multicast route on it), so no frame leaves
-the machine.
+python-can's udp_multicast bus, inside a network namespace this module makes for the run and
+removes after it (`can_netns`: `ip netns add`, only `lo`, up, with a multicast route on it), so
+no frame is sent on the machine's own interfaces.
 
 The demo's headline runs at the highest servo rate 1 Mbit/s carries; the others at the default
-1 kHz. A test that needs a ROS client runs itself again, in a pytest of its own, inside such a
-namespace (`inside`): the client must be in the namespace of the nodes.
+1 kHz. A test that needs the bus runs itself again, in a pytest of its own, inside that
+namespace (`inside`): its ROS client must be in the namespace of the nodes.
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 
 import pytest
 
@@ -43,18 +44,54 @@ def network_here() -> tuple[str, list[str], str]:
     return ns, links, routes
 
 
+NETNS_PREFIX = 'motion_ctrl_can_'      # + this test process's pid + a tag
+
+
+def _ip(*args: str) -> None:
+    subprocess.run(['ip', *args], check=True, capture_output=True, text=True, timeout=10)
+
+
+def _netns_names() -> list[str]:
+    out = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
+    return [line.split()[0] for line in out.splitlines() if line.strip()]
+
+
+@pytest.fixture(scope='module')
+def can_netns():
+    """The network namespace the CAN bus of this module's tests runs in, made here and removed
+    after the module: `ip netns add`, `lo` up, a route for multicast (224.0.0.0/4) on `lo`, no
+    other interface or route. Yields the prefix that runs a command in it (with PRIVATE_NET
+    set, so the tools do not make one of their own). Those of a test process that died
+    (SIGKILL: no teardown) are removed first. Needs root (CI runs as root)."""
+    if os.geteuid() != 0:
+        pytest.skip('making a network namespace (ip netns add) needs root')
+    for name in _netns_names():             # left by a test process that is gone
+        if name.startswith(NETNS_PREFIX) and not os.path.exists(
+                f'/proc/{name[len(NETNS_PREFIX):].split("_")[0]}'):
+            _ip('netns', 'del', name)
+    name = f'{NETNS_PREFIX}{os.getpid()}_{uuid.uuid4().hex[:6]}'
+    _ip('netns', 'add', name)
+    try:
+        _ip('-n', name, 'link', 'set', 'lo', 'up')
+        _ip('-n', name, 'route', 'add', '224.0.0.0/4', 'dev', 'lo')
+        yield ['ip', 'netns', 'exec', name, 'env', f'{PRIVATE_NET}=1']
+    finally:
+        _ip('netns', 'del', name)
+    assert name not in _netns_names(), f'{name} was not removed'
+
+
 def inside(request) -> bool:
-    """True inside a private network namespace: run the test's body (once it has checked that
-    the namespace is one: a loopback only, multicast routed on it). Outside, run this test in a
-    new one (a pytest of its own) and fail with its output if it fails; returns False."""
+    """True inside the module's network namespace: run the test's body (once it has checked
+    that the namespace is it: a loopback only, multicast routed on it). Outside, run this test
+    in it (a pytest of its own) and fail with its output if it fails; returns False."""
     if os.environ.get(PRIVATE_NET):
         _, links, routes = network_here()
         assert links == ['lo'] and 'dev lo' in routes, (links, routes)
         return True
     inner = request.getfixturevalue('tmp_path') / 'inner'     # (its logs stay with this test)
-    run = subprocess.run(private_network([sys.executable, '-m', 'pytest', '-q', '-x', '-s',
-                                          '-p', 'no:cacheprovider', '--basetemp', str(inner),
-                                          request.node.nodeid]),
+    run = subprocess.run(request.getfixturevalue('can_netns') + [
+        sys.executable, '-m', 'pytest', '-q', '-x', '-s', '-p', 'no:cacheprovider',
+        '--basetemp', str(inner), request.node.nodeid],
                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=230)
     print(run.stdout[-4000:])
     logs = ''.join(f'\n{log}:\n{log.read_text(errors="replace")[-2000:]}'
@@ -79,26 +116,45 @@ print(json.dumps({'ns': os.readlink('/proc/self/ns/net'), 'links': links, 'route
 """
 
 
-def test_the_can_bus_runs_in_a_namespace_of_its_own_with_only_a_loopback():
-    """The udp_multicast CAN bus of these tests (and of `demo --hardware canopen`) runs in a
-    network namespace made for the run: not this machine's, only `lo` in it (up), the multicast
-    route on `lo` and no other route; a frame sent there comes round inside. The namespace goes
-    with the process that made it."""
+def _namespace_seen(prefix: list[str], probe: str) -> dict:
+    """What `probe` (a Python program printing JSON last) reports, run under `prefix`."""
     import json
-    from motion_ctrl.ros.processes import CAN_BUS
-    outer_ns, outer_links, _ = network_here()
-    probe = NAMESPACE_PROBE.replace('CHANNEL', repr(CAN_BUS['can_channel']))
-    run = subprocess.run(private_network([sys.executable, '-c', probe]), cwd=REPO_ROOT,
+    run = subprocess.run(prefix + [sys.executable, '-c', probe], cwd=REPO_ROOT,
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 0, run.stderr[-3000:]
-    seen = json.loads(run.stdout.strip().splitlines()[-1])
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def _only_loopback_and_multicast(seen: dict, outer_ns: str) -> None:
     assert seen['ns'] != outer_ns
     assert seen['links'] == ['lo'], seen['links']
     routes = [r for r in seen['routes'].splitlines() if r.strip()]
     assert any(r.startswith('224.0.0.0/4 dev lo') for r in routes), routes
     assert all('dev lo' in r for r in routes), routes
+
+
+def test_the_can_bus_runs_in_a_namespace_of_its_own_with_only_a_loopback(can_netns):
+    """The udp_multicast CAN bus of these tests runs in the module's network namespace: not
+    this machine's, only `lo` in it (up), the multicast route on `lo` and no other route; a
+    frame sent there comes round inside. This process's network is untouched."""
+    from motion_ctrl.ros.processes import CAN_BUS
+    outer_ns, outer_links, _ = network_here()
+    seen = _namespace_seen(can_netns, NAMESPACE_PROBE.replace(
+        'CHANNEL', repr(CAN_BUS['can_channel'])))
+    _only_loopback_and_multicast(seen, outer_ns)
     assert seen['frame'] == [0x701, [0x05]]
     assert network_here()[0] == outer_ns and network_here()[1] == outer_links   # (unchanged)
+
+
+def test_the_demo_makes_the_same_namespace_for_itself():
+    """`demo --hardware canopen` (and `benchmark --sections canopen`) run themselves again in
+    processes.private_network when started outside one: a namespace of the same shape, gone with
+    the process (checked without a bus: the interfaces and routes only)."""
+    outer_ns = network_here()[0]
+    seen = _namespace_seen(private_network([]), NAMESPACE_PROBE.split('rx = ')[0] + (
+        "print(json.dumps({'ns': os.readlink('/proc/self/ns/net'), 'links': links, "
+        "'routes': routes}))"))
+    _only_loopback_and_multicast(seen, outer_ns)
 
 
 def test_outside_a_private_namespace_the_multicast_bus_is_refused(tmp_path):
@@ -112,14 +168,13 @@ def test_outside_a_private_namespace_the_multicast_bus_is_refused(tmp_path):
     assert not list(tmp_path.iterdir())          # no node was started (no log opened)
 
 
-def test_demo_headline_through_canopen_at_the_highest_rate(tmp_path):
+def test_demo_headline_through_canopen_at_the_highest_rate(can_netns, tmp_path):
     """`scripts/demo --hardware canopen`: +2 in, back to +1 in after the reversal, dual
-    feedback, the load encoder a CiA 406 node, at 2105 Hz (80 % of 1 Mbit/s): within 1 count."""
-    env = dict(os.environ)
-    env.pop(PRIVATE_NET, None)
-    run = subprocess.run([sys.executable, '-m', 'motion_ctrl.tools.demo', '--hardware', 'canopen',
-                          '-o', str(tmp_path)], cwd=REPO_ROOT, env=env, capture_output=True,
-                         text=True, timeout=200)
+    feedback, the load encoder a CiA 406 node, at 2105 Hz (80 % of 1 Mbit/s): within 1 count.
+    (In the module's namespace: the demo, finding PRIVATE_NET set, makes none of its own.)"""
+    run = subprocess.run(can_netns + [sys.executable, '-m', 'motion_ctrl.tools.demo',
+                                      '--hardware', 'canopen', '-o', str(tmp_path)],
+                         cwd=REPO_ROOT, capture_output=True, text=True, timeout=200)
     print(run.stdout)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:] + \
         (tmp_path / 'controller.log').read_text()[-3000:]
