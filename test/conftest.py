@@ -35,7 +35,7 @@ def _compiled_stale() -> list[str]:
                 if os.path.getmtime(src) > os.path.getmtime(os.path.join(base, f)):
                     stale.append(os.path.relpath(src, REPO_ROOT))
     if os.environ.get('MOTION_CTRL_COMPILE', '1') != '0':
-        missing = [src for src in _compiled_sources() if not any(pathlib.Path(REPO_ROOT).glob(
+        missing = [src for src in setup_table('COMPILED') if not any(pathlib.Path(REPO_ROOT).glob(
             src.removesuffix('.py') + '.*.so'))]
         if missing:         # (bootstrap's stamp says the package is built: it was, once)
             pathlib.Path(REPO_ROOT, '.venv', '.package.stamp').unlink(missing_ok=True)
@@ -43,12 +43,13 @@ def _compiled_stale() -> list[str]:
     return stale
 
 
-def _compiled_sources() -> list[str]:
-    """setup.py's COMPILED: the modules mypyc compiles."""
+def setup_table(name: str):
+    """A table of setup.py (COMPILED: the modules mypyc compiles; EXECUTABLES: the commands),
+    read from its source: importing setup.py would run setup()."""
     import ast
     setup = ast.parse(pathlib.Path(REPO_ROOT, 'setup.py').read_text())
     return next(ast.literal_eval(n.value) for n in setup.body if isinstance(n, ast.Assign)
-                and getattr(n.targets[0], 'id', '') == 'COMPILED')
+                and getattr(n.targets[0], 'id', '') == name)
 
 
 _STALE = _compiled_stale()

@@ -25,7 +25,7 @@ from motion_ctrl.core.registers import INCH
 from motion_ctrl.plotting.open_loop import plot_open_loop
 from motion_ctrl.plotting.steps import plot_steps
 from motion_ctrl.procedures.identify import (IdentifyError, default_settings, identify,
-                                             not_ready, servo_rate)
+                                             servo_rate)
 from motion_ctrl.procedures.session import SessionError
 from msg_defs.status import Status
 
@@ -346,7 +346,7 @@ def autotune_ros(client, axis, args, out: pathlib.Path, log=print) -> dict:
     against the controller's registers, with --apply its verification (verify). Returns the
     proposal, the evaluation of the registers before and the Tuning; with --apply the moves
     (runs) and whether every move after came to rest (at_rest)."""
-    problem = not_ready(client, args.axis)
+    problem = axis.not_ready()
     if problem:
         raise AutotuneError(problem)
     current = axis.get(*READ)

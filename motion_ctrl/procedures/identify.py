@@ -150,17 +150,6 @@ def default_settings(axis: str, rate: float) -> argparse.Namespace:
 # ================================================================================================
 # the axis
 
-def not_ready(client, name: str) -> str:
-    """Why axis `name` cannot be measured or tuned now ('' when it can): a fault, or not
-    enabled."""
-    from motion_ctrl.ros.client import FAULTS
-    word = client.status[name] or 0
-    if word & FAULTS or not word & Status.ENABLED:
-        return (f'axis {name} is not ready ({Status(word)!r}): reset and enable it first '
-                f'({name}/reset, {name}/enable)')
-    return ''
-
-
 def servo_rate(axis) -> float:
     """The controller's servo_rate register [Hz]."""
     from rclpy.parameter import parameter_value_to_python
@@ -563,7 +552,7 @@ def identify(axis, args, out: pathlib.Path, log=print) -> dict:
     """The whole measurement on an axis of a ready controller (the module docstring's steps),
     the registers put back after the runs; returns what it found and wrote. Raises
     IdentifyError where the fit does not describe the axis (analysis.identify.doubts)."""
-    problem = not_ready(axis.client, args.axis)
+    problem = axis.not_ready()
     if problem:
         raise IdentifyError(problem)
     regs = axis.get(*EXCITATION_REGISTERS)

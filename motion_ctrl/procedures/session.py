@@ -81,6 +81,16 @@ class AxisUnderTest:
         if not response.result.successful:
             raise SessionError(f'controller refused {path}: {response.result.reason}')
 
+    def not_ready(self) -> str:
+        """Why the axis cannot be moved, measured or tuned now ('' when it can): a fault, or
+        not enabled."""
+        from motion_ctrl.ros.client import FAULTS
+        word = self.client.status[self.axis] or 0
+        if word & FAULTS or not word & Status.ENABLED:
+            return (f'axis {self.axis} is not ready ({Status(word)!r}): reset and enable it '
+                    f'first ({self.axis}/reset, {self.axis}/enable)')
+        return ''
+
     # -- motion and readings -----------------------------------------------------------------
     def move(self, position: float, timeout: float) -> None:
         if self.client.move({self.axis: position}, timeout=timeout) is None:

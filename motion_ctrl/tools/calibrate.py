@@ -29,10 +29,8 @@ import numpy as np
 from motion_ctrl.analysis import iso230
 from motion_ctrl.core.registers import INCH
 from motion_ctrl.plotting.iso230 import plot_report
-from motion_ctrl.ros.client import FAULTS
 from motion_ctrl.procedures.session import (AxisUnderTest, SessionError, axis_session, pair,
                                        session_arguments, spawned_hardware)
-from msg_defs.status import Status
 
 COMP_REGISTERS = ('backlash_distance', 'backlash_table', 'backlash_table_spacing',
                   'leadscrew_table', 'leadscrew_table_spacing')
@@ -52,7 +50,9 @@ def default_travel(soft_min: float, soft_max: float, overtravel: float) -> tuple
 def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     """The whole procedure on an axis of a ready controller; returns {'before': Iso230,
     'after': Iso230 or None, 'tables': Tables, 'seconds': {...}}."""
-    _check_ready(axis, args.axis)
+    problem = axis.not_ready()
+    if problem:
+        raise SessionError(problem)
     regs, lo, hi, targets = _plan(axis, args, log)
     cpm = regs['load_counts_per_m']
     saved = {k: regs[k] for k in ('feedback', 'integration_mode', *COMP_REGISTERS)}
@@ -89,15 +89,6 @@ def calibrate(axis: AxisUnderTest, args, out: pathlib.Path, log=print) -> dict:
     log(f'calibrate: plot in {png}; ' + ', '.join(f'{k} {v:.1f} s' for k, v in seconds.items()))
     (out / 'report.md').write_text(report + '\n')
     return dict(before=before, after=after, tables=tables, seconds=seconds, targets=targets)
-
-
-def _check_ready(axis: AxisUnderTest, name: str) -> None:
-    """SessionError unless the axis is enabled and without a fault."""
-    word = axis.client.status[name] or 0
-    if word & FAULTS or not word & Status.ENABLED:
-        raise SessionError(f'axis {name} is not ready to move ({Status(word)!r}): '
-                               f'reset and enable it first (services {name}/reset, '
-                               f'{name}/enable)')
 
 
 def _plan(axis: AxisUnderTest, args, log) -> tuple[dict, float, float, np.ndarray]:

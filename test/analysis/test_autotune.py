@@ -188,18 +188,24 @@ def test_bad_input_is_refused_with_a_reason():
         at.AxisResponse(ax.model, T, motor=ax.motor)
 
 
-def test_files_round_trip(tmp_path):
-    ax, _ = axis()
-    with pytest.raises(ValueError, match='identify.yaml'):
-        at.read_identify(tmp_path)
+def _write_identify(folder, ax) -> None:
+    """What identify writes into `folder` (identify.yaml, the response) for axis `ax`."""
     m = ax.model
-    (tmp_path / 'identify.yaml').write_text(yaml.safe_dump({k: float(v) for k, v in dict(
+    (folder / 'identify.yaml').write_text(yaml.safe_dump({k: float(v) for k, v in dict(
         accel_per_volt=m.accel_per_volt, viscous_pole=m.viscous_pole,
         resonance_hz=m.resonance_hz, resonance_damping=m.resonance_damping,
         antiresonance_hz=m.antiresonance_hz, antiresonance_damping=m.antiresonance_damping,
         load_zero=m.load_zero, delay_ticks=0, sample_period=T, coulomb=0.24,
         viscous=ax.viscous).items()}))
-    at.write_response(tmp_path / at.RESPONSE_FILE, ax.motor, ax.load)
+    at.write_response(folder / at.RESPONSE_FILE, ax.motor, ax.load)
+
+
+def test_files_round_trip(tmp_path):
+    ax, _ = axis()
+    with pytest.raises(ValueError, match='identify.yaml'):
+        at.read_identify(tmp_path)
+    m = ax.model
+    _write_identify(tmp_path, ax)
     back = at.read_identify(tmp_path / 'identify.yaml')
     assert back.model == m
     assert back.motor is not None
@@ -288,13 +294,7 @@ def test_the_tool_offline(tmp_path, capsys):
     m = ax.model
     src = tmp_path / 'identify'
     src.mkdir()
-    (src / 'identify.yaml').write_text(yaml.safe_dump({k: float(v) for k, v in dict(
-        accel_per_volt=m.accel_per_volt, viscous_pole=m.viscous_pole,
-        resonance_hz=m.resonance_hz, resonance_damping=m.resonance_damping,
-        antiresonance_hz=m.antiresonance_hz, antiresonance_damping=m.antiresonance_damping,
-        load_zero=m.load_zero, delay_ticks=0, sample_period=T, coulomb=0.24,
-        viscous=ax.viscous).items()}))
-    at.write_response(src / at.RESPONSE_FILE, ax.motor, ax.load)
+    _write_identify(src, ax)
     out = tmp_path / 'out'
     assert tool.main(['--from', str(src), '-o', str(out)]) == 0
     regs = yaml.safe_load((out / 'autotune.yaml').read_text())['controller']['ros__parameters']

@@ -1,7 +1,6 @@
 """The servo tick compiled by mypyc (setup.py COMPILED) is the plain Python it is compiled from:
 the tree that the tests import runs the compiled modules (scripts/bootstrap copies them there),
 and a slide run with them matches, float for float, the same run on the plain sources."""
-import ast
 import os
 import shutil
 import subprocess
@@ -9,7 +8,7 @@ import sys
 
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, setup_table
 
 
 # The run compared: the headline table (every configuration, the leadscrew calibration
@@ -33,10 +32,7 @@ print(hashlib.sha256(repr((tr.command, tr.actual, tr.motor, tr.load, tr.output, 
 
 def compiled_modules() -> list[str]:
     """setup.py's COMPILED, as module names."""
-    tree = ast.parse(open(os.path.join(REPO_ROOT, 'setup.py')).read())
-    value = next(n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
-                 and getattr(n.targets[0], 'id', None) == 'COMPILED')
-    return [p[:-3].replace('/', '.') for p in ast.literal_eval(value)]
+    return [p[:-3].replace('/', '.') for p in setup_table('COMPILED')]
 
 
 def run(root, env) -> str:

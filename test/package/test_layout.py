@@ -6,7 +6,7 @@ procedures/, bags/, analysis/, plotting/."""
 import ast
 import pathlib
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, setup_table
 
 PACKAGE = pathlib.Path(REPO_ROOT) / 'motion_ctrl'
 MAX_MODULE_LINES = 400
@@ -61,10 +61,7 @@ def test_no_function_is_over_60_lines_but_the_documented_exceptions():
 
 def _tools() -> set[str]:
     """The modules of setup.py's EXECUTABLES in motion_ctrl.tools (a command each)."""
-    setup = ast.parse((pathlib.Path(REPO_ROOT) / 'setup.py').read_text())
-    table = next(ast.literal_eval(n.value) for n in setup.body if isinstance(n, ast.Assign)
-                 and getattr(n.targets[0], 'id', '') == 'EXECUTABLES')
-    targets = [v.split(':')[0] for v in table.values()]
+    targets = [v.split(':')[0] for v in setup_table('EXECUTABLES').values()]
     return {t for t in targets if t.startswith('motion_ctrl.tools.')}
 
 

@@ -101,19 +101,25 @@ def inside(request) -> bool:
     return False
 
 
-NAMESPACE_PROBE = """
-import json, os, subprocess, can
+# What a process sees of its network namespace (JSON on its last line), and, with BUS_PROBE, a
+# frame sent round on the udp_multicast bus there.
+SHAPE_PROBE = """
+import json, os, subprocess
 links = sorted(l.split(':')[0].strip() for l in open('/proc/self/net/dev').read().splitlines()[2:])
 routes = subprocess.run(['ip', 'route', 'show', 'table', 'all'], capture_output=True,
                         text=True).stdout
+seen = {'ns': os.readlink('/proc/self/ns/net'), 'links': links, 'routes': routes}
+"""
+BUS_PROBE = """
+import can
 rx = can.Bus(interface='udp_multicast', channel=CHANNEL, receive_own_messages=False)
 tx = can.Bus(interface='udp_multicast', channel=CHANNEL)
 tx.send(can.Message(arbitration_id=0x701, data=[0x05], is_extended_id=False))
 frame = rx.recv(2.0)
 tx.shutdown(); rx.shutdown()
-print(json.dumps({'ns': os.readlink('/proc/self/ns/net'), 'links': links, 'routes': routes,
-                  'frame': None if frame is None else [frame.arbitration_id, list(frame.data)]}))
+seen['frame'] = None if frame is None else [frame.arbitration_id, list(frame.data)]
 """
+PRINT = "\nprint(json.dumps(seen))\n"
 
 
 def _namespace_seen(prefix: list[str], probe: str) -> dict:
@@ -139,8 +145,8 @@ def test_the_can_bus_runs_in_a_namespace_of_its_own_with_only_a_loopback(can_net
     frame sent there comes round inside. This process's network is untouched."""
     from motion_ctrl.ros.processes import CAN_BUS
     outer_ns, outer_links, _ = network_here()
-    seen = _namespace_seen(can_netns, NAMESPACE_PROBE.replace(
-        'CHANNEL', repr(CAN_BUS['can_channel'])))
+    seen = _namespace_seen(can_netns, SHAPE_PROBE + BUS_PROBE.replace(
+        'CHANNEL', repr(CAN_BUS['can_channel'])) + PRINT)
     _only_loopback_and_multicast(seen, outer_ns)
     assert seen['frame'] == [0x701, [0x05]]
     assert network_here()[0] == outer_ns and network_here()[1] == outer_links   # (unchanged)
@@ -151,9 +157,7 @@ def test_the_demo_makes_the_same_namespace_for_itself():
     processes.private_network when started outside one: a namespace of the same shape, gone with
     the process (checked without a bus: the interfaces and routes only)."""
     outer_ns = network_here()[0]
-    seen = _namespace_seen(private_network([]), NAMESPACE_PROBE.split('rx = ')[0] + (
-        "print(json.dumps({'ns': os.readlink('/proc/self/ns/net'), 'links': links, "
-        "'routes': routes}))"))
+    seen = _namespace_seen(private_network([]), SHAPE_PROBE + PRINT)
     _only_loopback_and_multicast(seen, outer_ns)
 
 
