@@ -32,7 +32,7 @@ import conftest
 
 from kit import running_slide, spin_for
 from msg_defs.status import Status
-from motion_ctrl.analysis.moves import format_summary, summarize_moves
+from motion_ctrl.analysis.moves import FAULT_BITS, format_summary, summarize_moves
 from motion_ctrl.bags.reader import ReportError, parse_joint_state
 from motion_ctrl.bags.report import make_report
 from motion_ctrl.tools import report
@@ -226,8 +226,8 @@ def skipped_ticks(stamps_ns, period=PERIOD):
 # -- the slide, shared by the ROS tests ----------------------------------------------------------
 def _slide(logs, context=None):
     from motion_ctrl.ros.client import SlideClient
-    with running_slide(logs, lambda: SlideClient(name='record_test_client', context=context)) \
-            as s:
+    with running_slide(logs, lambda: SlideClient(name='record_test_client', context=context,
+                                                 services=True)) as s:
         yield s.client
 
 
@@ -260,6 +260,11 @@ def recording(slide, tmp_path_factory):
             target = targets[len(moves) % len(targets)]
             moves.append((target, slide.move({'x': target}, timeout=5.0)))
             spin_for(slide, 0.15)                   # a pause between moves
+            if (slide.status['x'] or 0) & FAULT_BITS:
+                # a move that faulted (an OVERSPEED over DDS on the shared 2-core VM, seen once
+                # in 4 full runs of 2026-11-27) is in the record as such: the recording goes on
+                slide.call('reset')
+                slide.call('enable', True)
         seconds = time.monotonic() - t0
         rc, out, err = rec.stop(signal.SIGINT)
         rec = None
