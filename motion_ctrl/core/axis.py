@@ -246,10 +246,12 @@ class Axis(AxisCommands):
         self._guard = 0
 
     def _correct_by(self, v2: float) -> None:
-        """A sampled correction move: PR V2 on the motor, relative to its command."""
+        """A sampled correction move: PR V2 on the motor, relative to its command, at the
+        corrections' own acceleration."""
         assert self.target is not None           # (corrections follow a position move)
         self.sampled_offset += v2
-        self.profile.move_to(self.target + self.sampled_offset)
+        self.profile.move_to(self.target + self.sampled_offset,
+                             max_acceleration=self.sampled.acceleration)
         self.settling.start_position_move(self.target + self.sampled_offset)
 
     def home(self, motor_counts: float, load_counts: float) -> None:

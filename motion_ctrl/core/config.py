@@ -147,9 +147,11 @@ class CorrectionConfig(Config):
     """Galil's sampled dual loop: when the correction moves end."""
     correction_tolerance: float
     correction_max_moves: int
+    correction_acceleration: float
     load_counts_per_m: float
     settling_time: float
     coarse_position_tolerance: float
+    window_centre: str
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,6 +18,12 @@
   encoder still (within one count) for a settling time: the slide is read at rest (it can coast
   on into the gap after the motor stopped), and the −TE term takes care of a motor that stopped
   short of its command.
+  The correction moves run at their own acceleration (correction_acceleration, as a Galil
+  program sets AC / DC before #CORRECT): a motor that crosses the backlash fast throws the slide
+  across the gap when it meets it, and the corrections then hunt from flank to flank.
+  V1 is read as the other at-rest windows are (window_centre): from the count's lower edge,
+  or from its middle (count_middle), where a reading of the target or one count below it both
+  put the slide within a count of the target.
   The sequence ends when |V1| < correction_tolerance (the load is where it should be), after
   correction_max_moves, or when the load error grows beyond DIVERGED times the first one and
   DIVERGED coarse windows (the corrections drive the slide away).
@@ -67,7 +73,10 @@ class SampledCorrection:
         self.tolerance_counts = 1
         self.near_counts = 0.0       # the coarse window [counts]: no runaway within DIVERGED of it
         self.max_moves = 0
+        self.acceleration = 0.0      # of the correction moves [m/s²]
         self.settle_time = 0.0
+        self.shift_counts = 0.0      # window_centre count_middle: judged from the count's middle
+        self.shift = 0.0             # the same [m]
         self.configure(config or defaults(CorrectionConfig))
 
     def configure(self, config: CorrectionConfig) -> None:
@@ -75,8 +84,11 @@ class SampledCorrection:
         self.tolerance_counts = max(1, round(config.correction_tolerance
                                              * config.load_counts_per_m))
         self.max_moves = config.correction_max_moves
+        self.acceleration = config.correction_acceleration
         self.near_counts = config.coarse_position_tolerance * config.load_counts_per_m
         self.settle_time = config.settling_time
+        self.shift_counts = 0.5 if config.window_centre == 'count_middle' else 0.0
+        self.shift = self.shift_counts / config.load_counts_per_m
 
     def start(self) -> None:
         """A new move began: its end will be followed by corrections."""
@@ -132,7 +144,7 @@ class SampledCorrection:
             return None
         if self._load_still + 1e-9 < self.settle_time:
             return None
-        if abs(load_error_counts) < self.tolerance_counts:
+        if abs(load_error_counts - self.shift_counts) < self.tolerance_counts:
             self.phase = self.DONE
             return None
         if self.moves >= self.max_moves:
@@ -152,4 +164,4 @@ class SampledCorrection:
         self.moves += 1
         self.phase = self.CORRECTING
         self._still_ref = self._load_ref = None
-        return load_error - motor_error          # V2 = V1 − TE
+        return load_error - self.shift - motor_error          # V2 = V1 − TE

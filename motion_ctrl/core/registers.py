@@ -365,8 +365,11 @@ AXIS_REGISTERS = (
        min=0.0, min_exclusive=True),
     _r('correction_max_moves', 'integer', 200, 'count', 'Sampled dual loop: most correction '
        'moves per move (a reversal inside the gap can take one per count of backlash, twice '
-       'over when the slide overshoots: 28 in the headline, 50 and more over DDS).', '',
-       min=0, max=1000),
+       'over when the slide overshoots).', '', min=0, max=1000),
+    _r('correction_acceleration', 'double', 0.1, 'm/s²', 'Sampled dual loop: acceleration and '
+       'deceleration of the correction moves. Gentle, so that a motor crossing the backlash '
+       'meets the slide slowly instead of throwing it across the gap (doc/headline.md).',
+       'Galil AC / DC set for the #CORRECT moves', min=0.0, min_exclusive=True),
     # The defaults of a follow_joint_trajectory goal (motion_ctrl.core.follow_goal); a goal's
     # path_tolerance, goal_tolerance and goal_time_tolerance override them.
     _r('trajectory_tolerance', 'double', 0.001, 'm', 'follow_joint_trajectory: largest '

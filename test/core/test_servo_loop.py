@@ -201,7 +201,8 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     from motion_ctrl.core.dual_loop import SampledCorrection
     c = SampledCorrection(CorrectionConfig.of(dict(
         correction_tolerance=2 * COUNT, correction_max_moves=200, load_counts_per_m=1 / COUNT,
-        settling_time=0.02, coarse_position_tolerance=10 * COUNT)))
+        settling_time=0.02, coarse_position_tolerance=10 * COUNT,
+        correction_acceleration=0.1, window_centre='reading')))
     c.start_now()
 
     def settled(error_counts):
