@@ -118,6 +118,8 @@ class Axis(AxisCommands):
         self.motor_acc = self.load_acc = 0.0
         self.actual_pos = self.actual_vel = 0.0    # what the loop controls, compensation hidden
         self.following_error = 0.0
+        # A stall's plan was made from its sample's mean speed: planned again on the next one.
+        self._replan_due = False
         self._loop_cmd = self._loop_pos = self._loop_acc = 0.0   # this tick's loop terms
         self.correction = 0.0        # backlash + leadscrew correction on the motor command
         # Sampled dual loop (Galil): motor target = user target + offset.
@@ -346,7 +348,7 @@ class Axis(AxisCommands):
         if abs(self.motor_vel) > self._overspeed:
             self._overspeed_fault()
             return 0.0
-        self._step_command(dt, age)
+        self._step_command(dt, age, sample_dt)
         if self._following_error_fatal():
             return 0.0
         out = self._servo(sample_dt)
@@ -372,13 +374,18 @@ class Axis(AxisCommands):
         self.motor_vel = motor_vel
         self.load_vel = load_vel
 
-    def _step_command(self, dt: float, age: float) -> None:
+    def _step_command(self, dt: float, age: float, sample_dt: float) -> None:
         """2-4. The profile's next command (a jog kept inside the soft limits), the screw
         compensation on a motor-side loop, and the feedback each term closes on; the following
         error against the command at the sample's time."""
         p = self.profile
         if dt > self._stall:
             self._after_stall()
+            self._replan_due = True
+        elif self._replan_due and 0.0 < sample_dt <= self._stall:
+            self._replan_due = False
+            if not (p.moving and self._replan()):
+                p.step(dt)
         else:
             p.step(dt)
         if self._guard:
@@ -404,15 +411,22 @@ class Axis(AxisCommands):
 
     def _after_stall(self) -> None:
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
-        measured state, in the profile's frame; a path stepped on by STALL_PERIODS only."""
+        measured state, in the profile's frame; a path stepped on by STALL_PERIODS only. The
+        stall's sample gives the mean speed over the stall, not the speed now (the amplifier's
+        watchdog may have braked the slide within it): the next sample's plan replaces this
+        one (`_replan_due`), before the command runs ahead of a slide that is slower."""
         p = self.profile
+        if not (p.moving and self._replan()):
+            p.step(self._stall)
+
+    def _replan(self) -> bool:
+        """The move, jog or stop planned again from the measured state (Profile.rebase)."""
         if self._motor_side:
             position, velocity = self.motor_pos - self.correction, self.motor_vel
         else:
             position = self.load_pos
             velocity = self.load_vel if self._vel_on_load else self.motor_vel
-        if not (p.moving and p.rebase(position, velocity)):
-            p.step(self._stall)
+        return self.profile.rebase(position, velocity)
 
     def _overspeed_fault(self) -> None:
         """1a. The measured motor velocity (in load units) beyond overspeed_velocity: a drive's

@@ -12,8 +12,9 @@ Each tick (`ServoLoop.cycle`):
   times must lie on its servo grid (the node ticks at whole periods of its clock, as a PMAC's
   servo interrupt does; in sim time they do), so that every period of the loop is one of the
   slides: a tick that comes after skipped ones first integrates the periods it missed on the
-  held command (the machine does not stop while the loop is held up; the watchdog counts a
-  late cycle as the plant node does, at most two periods). A loop whose ticks and slides
+  held command (the machine does not stop while the loop is held up), each one a period without
+  a command for the amplifier's watchdog, which trips after command_timeout as a drive's does
+  when its controller stops sending. A loop whose ticks and slides
   advanced by different times would compare the command of one time with the slide of another
   (tens of counts of following error at speed, a hundred microseconds of jitter apart).
 
@@ -110,14 +111,25 @@ class SimHardware(HardwareInterface):
         if t != t or abs(now - t) < 1e-9:   # the first read; or on time (ROS stamps: whole ns)
             t = self.time = now
         elif now > t:                       # ticks were skipped: the slides ran on meanwhile
-            late = now - t
-            for _, plant in self._slides:
-                plant.advance(late, self.period)
+            self._run_on(now - t)
             t = self.time = now
         for io, plant in self._slides:
             io.motor = plant.motor_count()
             io.load = plant.load_count()
             io.stamp = t
+
+    def _run_on(self, late: float) -> None:
+        """The `late` [s] of skipped ticks: periods in which no command reached the amplifiers,
+        each counted by their watchdogs (after command_timeout: 0 V and the dynamic brake), as
+        a drive counts the cycles its controller missed."""
+        T = self.period
+        whole = int(late / T + 1e-6)
+        rest = late - whole * T
+        for _, plant in self._slides:
+            for _ in range(whole):
+                plant.advance(T)
+            if rest > 1e-12:
+                plant.advance(rest)
 
     def write(self, now: float) -> None:
         """Each commanded axis's output [V] to its amplifier (after `latency_ticks`), then every

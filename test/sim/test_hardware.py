@@ -174,7 +174,9 @@ def test_sim_steps_one_period_per_write_like_the_plant_on_a_held_command():
     assert stamps == [k * T for k in range(50)]
 
 
-def test_a_late_tick_integrates_its_lateness_on_the_held_command():
+def _held_up(late: float):
+    """The sim backend and a reference slide, both commanded 3 V for a period; then the
+    loop's next tick `late` s late."""
     hw = sim()
     ref = SlidePlant()
     hw.read(0.0)
@@ -182,10 +184,30 @@ def test_a_late_tick_integrates_its_lateness_on_the_held_command():
     hw.write(0.0)
     ref.command(3.0)
     ref.advance(T, T)
-    hw.read(T + 0.004)                # held up 4 ms
-    ref.advance(0.004, T)
-    assert hw.plants['x'].x_m == ref.x_m
+    hw.read(T + late)
+    return hw, ref
+
+
+def test_a_late_tick_integrates_its_lateness_on_the_held_command():
+    """Held up 4 ms: the slide ran on the held 3 V for those four periods."""
+    hw, ref = _held_up(0.004)
+    for _ in range(4):
+        ref.advance(T)
+    assert hw.plants['x'].x_m == ref.x_m and not hw.tripped()[0]
     assert hw.time == pytest.approx(T + 0.004) and hw.io['x'].stamp == hw.time
+
+
+def test_a_loop_held_up_longer_than_the_watchdog_finds_the_amplifier_braked():
+    """Held up 25 ms: no command came in those periods, so the amplifier's watchdog tripped
+    after command_timeout (10 ms) and the dynamic brake stopped the motor, as a drive does when
+    its controller stops sending; the 3 V did not run on for the whole 25 ms (the sprint the
+    loop then found: a motor at 0.2 m/s, OVERSPEED, with the lateness counted as two periods)."""
+    hw, ref = _held_up(0.025)
+    for _ in range(25):
+        ref.advance(T)
+    assert ref.tripped and hw.tripped() == [True]
+    assert hw.plants['x'].x_m == ref.x_m and hw.plants['x'].v_m == ref.v_m
+    assert abs(ref.v_m) < 0.01
 
 
 def test_an_axis_left_without_commands_trips_its_watchdog_and_brakes():
