@@ -95,7 +95,8 @@ TEST_REST = 0.5             # s watched at rest after a test move's MOTION_DONE
 #: what the rule sets (and the verification puts back on failure)
 REST_REGISTERS = ('deadband_tolerance', 'fine_position_tolerance', 'window_centre',
                   'friction_ff_at_rest', 'settling_time', 'output_deadband', 'integration_mode')
-#: the exact count as shipped (the register table's values)
+#: the exact count as shipped (the register table's values; params/controller.yaml sets
+#: window_centre count_middle for the shipped slide by hand, doc/gains.md)
 SHIPPED = dict(deadband_tolerance=0.0, window_centre='reading', fine_position_tolerance=1.5e-6)
 
 

@@ -751,6 +751,7 @@ SHIPPED_SLIDE_TUNING: dict[str, float | str] = {
     'friction_ff': 0.242,
     'friction_ff_at_rest': 0.181,
     'integration_mode': 'at_rest',
+    'window_centre': 'count_middle',
 }
 
 
