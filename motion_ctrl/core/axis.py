@@ -25,6 +25,7 @@ The per-tick path works on values cached at configure time and on plain-int stat
 """
 from __future__ import annotations
 
+import math
 from typing import Final
 
 from msg_defs.status import Status
@@ -384,7 +385,7 @@ class Axis(AxisCommands):
             self._replan_due = True
         elif self._replan_due and 0.0 < sample_dt <= self._stall:
             self._replan_due = False
-            if not (p.moving and self._replan()):
+            if not (p.moving and self._replan(abs(p.velocity))):
                 p.step(dt)
         else:
             p.step(dt)
@@ -414,18 +415,22 @@ class Axis(AxisCommands):
         measured state, in the profile's frame; a path stepped on by STALL_PERIODS only. The
         stall's sample gives the mean speed over the stall, not the speed now (the amplifier's
         watchdog may have braked the slide within it): the next sample's plan replaces this
-        one (`_replan_due`), before the command runs ahead of a slide that is slower."""
+        one (`_replan_due`), before the command runs ahead of a slide that is slower; never
+        faster than this one (a single sample's speed carries the motor's ringing)."""
         p = self.profile
         if not (p.moving and self._replan()):
             p.step(self._stall)
 
-    def _replan(self) -> bool:
-        """The move, jog or stop planned again from the measured state (Profile.rebase)."""
+    def _replan(self, most: float = math.inf) -> bool:
+        """The move, jog or stop planned again from the measured state (Profile.rebase),
+        starting at most `most` fast [m/s]."""
         if self._motor_side:
             position, velocity = self.motor_pos - self.correction, self.motor_vel
         else:
             position = self.load_pos
             velocity = self.load_vel if self._vel_on_load else self.motor_vel
+        if abs(velocity) > most:
+            velocity = math.copysign(most, velocity)
         return self.profile.rebase(position, velocity)
 
     def _overspeed_fault(self) -> None:

@@ -166,7 +166,7 @@ def _moves_with_late_ticks(seed: int, share: float = 0.02, most: int = 25):
 def test_late_ticks_at_random_neither_sprint_nor_trip():
     """A loaded machine: 2 % of the ticks come 1-25 periods late, at random, while the slide
     runs on (sim.hardware: the amplifier's watchdog brakes it after 10 ms without a command).
-    Over 10 seeds the motor is never faster than 0.12 m/s (max_velocity 0.1; here 0.110),
+    Over 10 seeds the motor is never faster than 0.12 m/s (max_velocity 0.1; here 0.116),
     never OVERSPEED, and every move is done within a count. Before, a stall's re-plan took the
     speed of its sample (the mean over the stall) for the speed now, and the sim's watchdog
     counted a late tick as two periods: the command ran ahead of a braked slide, the output
