@@ -24,8 +24,11 @@ from conftest import REPO_ROOT
 from kit import COUNT, INCH, long_run
 from motion_ctrl.ros.processes import PRIVATE_NET, interfaces, private_network
 
-# No rerun on a stall of the servo link (the drive's and the link's faults are the subject).
-pytestmark = [pytest.mark.servo_link_under_test]
+# A test whose subject is the drive's or the link's faults is marked servo_link_under_test (no
+# rerun on a stall of the servo link); the others, as every test of the suite, run once more
+# when the link stalled under them (conftest: at 2.1 kHz a 20 ms stall of the bus on this
+# 2-core VM, FEEDBACK_FAULT before the demo's first move, is not the headline's to show).
+pytestmark: list = []
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
     import pytest_timeout  # noqa: F401
@@ -236,6 +239,7 @@ class _Slide:
         return {'controller': self.controller.stop(), 'virtual_drive': self.drive.stop()}
 
 
+@pytest.mark.servo_link_under_test
 def test_a_drive_fault_aborts_and_reset_recovers_then_a_dead_drive_faults_the_axis(
         request, tmp_path):
     """Over ROS: a fault injected into the drive mid-move opens the loop (ABORTED) with the
@@ -282,6 +286,7 @@ def test_a_drive_fault_aborts_and_reset_recovers_then_a_dead_drive_faults_the_ax
         slide.close()
 
 
+@pytest.mark.servo_link_under_test
 def test_a_killed_controller_leaves_the_slide_to_the_drive_watchdog(request, tmp_path):
     """The controller's loop process SIGKILLed while the slide cruises at max_velocity: no more
     SYNC and RPDO; the drive's clock runs the slide on, its watchdog faults it (8250h), torque
