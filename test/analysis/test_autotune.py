@@ -13,7 +13,8 @@ import math
 import numpy as np
 import pytest
 import yaml
-from scipy import signal as sps
+
+from test_identify import BL, BM, C_S, FS, K_S, KF, ML, MM, T, two_mass
 
 from motion_ctrl.analysis import autotune as at
 from motion_ctrl.analysis import identify as idf
@@ -24,26 +25,16 @@ from motion_ctrl.sim.harness import Harness
 from motion_ctrl.tools import autotune as tool
 from msg_defs.status import Status
 
-FS = 1000.0
-T = 1.0 / FS
-# The default slide in load-equivalent linear terms (as test_identify).
-MM, ML, K_S, C_S, BM, BL = 30.6, 5.0, 1e7, 200.0, 15.3, 50.0
-KF = 61.8                          # N/V
 
 
 def plant(k=K_S, ml=ML):
-    """(A, B) discrete, state [xm, vm, xl, vl], and the exact continuous resonances."""
-    a = np.array([[0, 1, 0, 0],
-                  [-k / MM, -(C_S + BM) / MM, k / MM, C_S / MM],
-                  [0, 0, 0, 1],
-                  [k / ml, C_S / ml, -k / ml, -(C_S + BL) / ml]])
-    b = np.array([[0], [KF / MM], [0], [0]])
-    ad, bd, *_ = sps.cont2discrete((a, b, np.eye(4), np.zeros((4, 1))), T, 'zoh')
-    pole = [e for e in np.linalg.eigvals(a) if e.imag > 0][0]
-    zero = [e for e in np.roots([ml, C_S + BL, k]) if e.imag > 0][0]
-    model = idf.TwoMassModel(KF / (MM + ml), (BM + BL) / (MM + ml), abs(pole) / (2 * math.pi),
-                             -pole.real / abs(pole), abs(zero) / (2 * math.pi),
-                             -zero.real / abs(zero), C_S / k)
+    """(A, B) discrete, state [xm, vm, xl, vl] (test_identify's two-mass plant, the default
+    slide in load-equivalent linear terms), and the two-mass model at its exact continuous
+    resonances."""
+    ad, bd, truth = two_mass(k=k, ml=ml)
+    model = idf.TwoMassModel(KF / (MM + ml), (BM + BL) / (MM + ml), truth['resonance'],
+                             truth['resonance_damping'], truth['antiresonance'],
+                             truth['antiresonance_damping'], C_S / k)
     return ad, bd, model
 
 
@@ -52,7 +43,7 @@ def exact(ad, bd, freq):
     out = []
     for f in np.asarray(freq, dtype=float):
         z = np.exp(2j * math.pi * f * T)
-        x = np.linalg.solve(z * np.eye(4) - ad, bd[:, 0])
+        x = np.linalg.solve(z * np.eye(4) - ad, bd)
         out.append((x[0], x[2]))
     a = np.array(out)
     return a[:, 0], a[:, 1]

@@ -2,12 +2,14 @@
 after a stall of the servo loop (core.axis STALL_PERIODS), without ROS: the loop ticks the
 simulated slide (SimHardware) and is held up mid-move while the slide's amplifier runs on by
 itself, as the plant node does while the controller's process is frozen (SIGSTOP)."""
+import random
+
 import pytest
 
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.config import OVERSPEED_RATIO
-from motion_ctrl.core.registers import (AXIS_REGISTERS, LOAD_COUNTS_PER_M, axis_defaults,
-                                        consistency)
+from motion_ctrl.core.registers import (AXIS_REGISTERS, INCH, LOAD_COUNTS_PER_M,
+                                        SHIPPED_SLIDE_TUNING, axis_defaults, consistency)
 from motion_ctrl.core.servo_loop import ServoLoop
 from motion_ctrl.sim.hardware import SimHardware
 from msg_defs.status import Status as S
@@ -139,8 +141,6 @@ def _moves_with_late_ticks(seed: int, share: float = 0.02, most: int = 25):
     """The shipped slide's moves back and forth (+1, +2 in, three times) with `share` of the
     ticks coming 1 to `most` periods late, at random (`seed`), while the slide runs on.
     Returns (the motor's fastest measured speed [m/s], each move's final error [counts])."""
-    import random
-    from motion_ctrl.core.registers import INCH, SHIPPED_SLIDE_TUNING
     rng = random.Random(seed)
     loop, hw = _slide_loop(**dict(SHIPPED_SLIDE_TUNING))
     axis, plant = loop.axes['x'], hw.plants['x']

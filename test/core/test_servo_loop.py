@@ -6,6 +6,7 @@ from kit import COUNT
 from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.registers import AXIS_REGISTERS, axis_defaults
 from motion_ctrl.core.config import CorrectionConfig
+from motion_ctrl.core.dual_loop import SampledCorrection
 from motion_ctrl.core.servo_loop import STREAM_SETTLE, ServoLoop
 from msg_defs.status import Status as S
 
@@ -198,22 +199,10 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     one the first correction was for (stale or wrong readings, a blocked slide), the
     corrections end instead of driving the slide away (correction_max_moves is 200), and the
     loop says so once."""
-    from motion_ctrl.core.dual_loop import SampledCorrection
-    c = SampledCorrection(CorrectionConfig.of(dict(
-        correction_tolerance=2 * COUNT, correction_max_moves=200, load_counts_per_m=1 / COUNT,
-        settling_time=0.02, coarse_position_tolerance=10 * COUNT,
-        correction_acceleration=0.1, window_centre='reading')))
-    c.start_now()
+    c = _correction(correction_tolerance=2 * COUNT)
 
     def settled(error_counts):
-        """Ticks at rest with this load error until a correction is due (or none is)."""
-        for _ in range(200):
-            v2 = c.update(1e-3, profile_done=True, motor_settled=True, motor_counts=0,
-                          load_counts=0, load_error_counts=error_counts, motor_error=0.0,
-                          load_error=error_counts * COUNT)
-            if v2 is not None or c.phase == c.DONE:
-                return v2
-        return None
+        return _settled(c, error_counts)
     assert settled(20) == pytest.approx(20 * COUNT)          # first correction: V2 = V1
     assert settled(-30) == pytest.approx(-30 * COUNT)        # overshot: still corrected
     assert settled(81) is None and c.phase == c.DONE            # > 4 × the first: no more
@@ -234,6 +223,42 @@ def test_correction_moves_that_make_the_error_grow_are_not_repeated():
     lines = [line for k in range(1, 4) for line in (_tick_log(loop, k * T))]
     assert lines == [('warning', 'x: correction moves stopped: the load error grew from 20 to '
                                  '81 counts')]
+
+
+def _correction(**config) -> SampledCorrection:
+    """Galil's #CORRECT loop on a linear encoder of 1/COUNT counts a metre, started now."""
+    c = SampledCorrection(CorrectionConfig.of(dict(
+        correction_tolerance=COUNT, correction_max_moves=200, load_counts_per_m=1 / COUNT,
+        settling_time=0.02, coarse_position_tolerance=10 * COUNT, correction_acceleration=0.1,
+        window_centre='reading') | config))
+    c.start_now()
+    return c
+
+
+def _settled(c: SampledCorrection, error_counts: int):
+    """Ticks at rest with the load `error_counts` short of the target until a correction is
+    due (its V2 [m]) or the corrections end (None)."""
+    for _ in range(200):
+        v2 = c.update(1e-3, profile_done=True, motor_settled=True, motor_counts=0, load_counts=0,
+                      load_error_counts=error_counts, motor_error=0.0,
+                      load_error=error_counts * COUNT)
+        if v2 is not None or c.phase == c.DONE:
+            return v2
+    return None
+
+
+@pytest.mark.parametrize('window_centre, error, v2', [
+    ('reading', 0, None), ('reading', 1, 1.0), ('reading', -1, -1.0), ('reading', 2, 2.0),
+    ('count_middle', 0, None), ('count_middle', 1, None), ('count_middle', -1, -1.5),
+    ('count_middle', 2, 1.5)])
+def test_the_sampled_loop_judges_the_load_where_the_other_windows_judge_it(window_centre, error,
+                                                                          v2):
+    """A quadrature counter reads the lower edge of its count. With window_centre reading only
+    the target's own reading ends the corrections (the slide 0 ... +1 count from it); with
+    count_middle the reading one below it ends them too (the slide within a count either
+    way), and a correction aims the count's middle at the target."""
+    assert _settled(_correction(window_centre=window_centre), error) == (
+        None if v2 is None else pytest.approx(v2 * COUNT))
 
 
 def _tick_log(loop, now):
