@@ -739,9 +739,12 @@ def markdown_table(table) -> str:
 # the command moves (PMAC Ixx34 = 1). The breakaway aid (0.75 x the Coulomb friction) pushes the
 # last counts in against stiction. Held during moves, the integrator carries no push past the
 # end of the profile: over DDS, with the loop's real timing, the slide otherwise stopped a count
-# past the target and came back through the backlash in 300-650 ms. The table's defaults stay
-# the gains of Galil's tuning procedure on the slide (`tune`), integrating always, without the
-# aid: the harness scenarios and the core tests are stated in them.
+# past the target and came back through the backlash in 300-650 ms. The profile is an S-curve
+# (max_jerk 60 m/s³, the acceleration ramps in 25 ms): the acceleration feedforward fades out
+# with it at the end of the move, and the motor, braking on it a tick or two late over DDS,
+# stays on the slide instead of running back off it across the backlash gap. The table's
+# defaults stay the gains of Galil's tuning procedure on the slide (`tune`), integrating always,
+# without the aid, on a trapezoid: the harness scenarios and the core tests are stated in them.
 SHIPPED_SLIDE_TUNING: dict[str, float | str] = {
     'kp': 9200.0,
     'ki': 168000.0,
@@ -752,6 +755,7 @@ SHIPPED_SLIDE_TUNING: dict[str, float | str] = {
     'friction_ff_at_rest': 0.181,
     'integration_mode': 'at_rest',
     'window_centre': 'count_middle',
+    'max_jerk': 60.0,
 }
 
 

@@ -14,7 +14,9 @@ during a period holds for the whole of it).
 
 `demo_moves` runs the demo's three moves (1 in forward, +2 in, back to +1 in) on such clocks
 through the same `ServoLoop` the node drives, and returns, per move, the time from the end of
-the profile to MOTION_DONE, the overshoot and the slide's final error in linear counts.
+the profile to MOTION_DONE, the overshoot and the slide's final error in linear counts, and how
+fast the motor ran back against the move just after the profile's end (it leaves the slide and
+opens the backlash gap: doc/gains.md).
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from motion_ctrl.sim.plant import SlidePlant
 
 DEMO_MOVES = ((0.2, INCH), (1.2, 2 * INCH), (2.2, INCH))   # (start [s], target [m])
 DEMO_END = 3.2     # s: a second for each move and its rest
+BACK_WINDOW = 0.04  # s after the profile's end in which MoveResult.motor_back is taken
 _DONE = int(Status.MOTION_DONE)
 
 
@@ -88,6 +91,8 @@ class MoveResult:
     after_profile: float | None    # s from the end of the profile to MOTION_DONE (None: never)
     overshoot: float               # counts past the target, in the move's direction
     error: float                   # counts: the slide's final error
+    motor_back: float              # m/s: the motor's fastest run against the move in the
+                                   # BACK_WINDOW after the profile's end (0: none)
 
 
 def demo_moves(registers: dict, plant: dict, plant_ticks: list[float],
@@ -102,7 +107,7 @@ def demo_moves(registers: dict, plant: dict, plant_ticks: list[float],
                      sim_time=True, hardware=hw)
     counts_per_m = hw.plant.load_counts_per_m
     pending = list(moves)
-    trace: list[tuple[float, float, bool, int, float]] = []
+    trace: list[tuple[float, float, bool, int, float, float]] = []
     for now in loop_ticks:
         if now > end:
             break
@@ -110,7 +115,7 @@ def demo_moves(registers: dict, plant: dict, plant_ticks: list[float],
             loop.move({'x': pending.pop(0)[1]})
         loop.cycle(now)
         p = axis.profile
-        trace.append((now, p.position, p.moving, axis.word, hw.plant.x_l))
+        trace.append((now, p.position, p.moving, axis.word, hw.plant.x_l, hw.plant.v_m))
     results = []
     before = 0.0
     for (start, target), stop in zip(moves, [m[0] for m in moves[1:]] + [end]):
@@ -120,8 +125,11 @@ def demo_moves(registers: dict, plant: dict, plant_ticks: list[float],
                      and x[3] & _DONE), None)
         sign = 1.0 if target > before else -1.0
         before = target
+        back = [-sign * x[5] for x in seg
+                if ended is not None and ended <= x[0] < ended + BACK_WINDOW]
         results.append(MoveResult(
             None if done is None or ended is None else done - ended,
             max(sign * (x[4] - target) for x in seg) * counts_per_m,
-            (seg[-1][4] - target) * counts_per_m))
+            (seg[-1][4] - target) * counts_per_m,
+            max(back + [0.0])))
     return results
