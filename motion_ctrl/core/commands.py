@@ -434,7 +434,8 @@ class AxisCommands:
         Parameters
         ----------
         kind : str
-            'stop' at stop_deceleration, 'estop' at estop_deceleration [m/s²].
+            'stop' at stop_deceleration (jerk-limited by max_jerk), 'estop' on a ramp at
+            estop_deceleration [m/s²].
 
         Returns
         -------
@@ -452,7 +453,7 @@ class AxisCommands:
             return refused(f'{self.name}: an ESTOP is in progress; a STOP does not lower it')
         decel = self.config.stop_deceleration if kind == 'stop' else self.config.estop_deceleration
         try:
-            self.profile.stop(decel)
+            self.profile.stop(decel, jerk_limited=kind == 'stop')
         except ValueError as e:
             return refused(f'{self.name}: {e}')
         self.sampled.cancel()
@@ -591,7 +592,7 @@ class AxisCommands:
         if self.gather is not None:
             self.gather.end(f'the soft limit {limit - self.sampled_offset:g} m')
         if not planned:              # ruckig refused every plan: brake as hard as allowed
-            self.profile.stop(max(decel, self.config.estop_deceleration))
+            self.profile.stop(max(decel, self.config.estop_deceleration), jerk_limited=False)
             self.settling.start_stop(stop_kind or 'estop')
             self.target = None
             return

@@ -288,16 +288,20 @@ class Profile:
         self.kind = 'velocity'
         self.target_velocity = velocity
 
-    def stop(self, deceleration: float) -> None:
-        """Decelerate to rest at `deceleration` (jerk-limited if max_jerk > 0).
+    def stop(self, deceleration: float, jerk_limited: bool = True) -> None:
+        """Decelerate to rest at `deceleration`: jerk-limited if max_jerk > 0 and
+        `jerk_limited` (a STOP), else on a ramp (an ESTOP, as PMAC's abort at the
+        Ixx15 rate: the shortest stop the rate allows, whatever the S-curve).
 
-        Used for STOP and ESTOP, so it needs no configure(): without it the
-        stop is trapezoidal. kind is 'stop' until at rest, then 'idle'.
+        Needs no configure(): without it the stop is trapezoidal. kind is 'stop'
+        until at rest, then 'idle'.
 
         Parameters
         ----------
         deceleration : float
             [m/s²], finite and > 0 (stop_deceleration, estop_deceleration).
+        jerk_limited : bool
+            Shape the stop with max_jerk (False: a ramp at `deceleration`).
 
         Raises
         ------
@@ -310,7 +314,8 @@ class Profile:
             self.kind = 'idle'   # already at rest: nothing to decelerate
             self.target_velocity = None
             return
-        self._plan(ControlInterface.Velocity, 0.0, 0.0, float(deceleration))
+        self._plan(ControlInterface.Velocity, 0.0, 0.0, float(deceleration),
+                   max_jerk=None if jerk_limited else _INF)
         self.kind = 'stop'
         self.target_velocity = None
 
@@ -352,7 +357,7 @@ class Profile:
         inp = self._inp
         raw = (self.raw_position, self.raw_velocity, self.raw_acceleration)
         goal = (inp.control_interface, inp.target_position[0], inp.target_velocity[0],
-                inp.max_acceleration[0], inp.max_velocity[0])
+                inp.max_acceleration[0], inp.max_velocity[0], inp.max_jerk[0])
         self.raw_position, self.raw_velocity, self.raw_acceleration = position, velocity, 0.0
         try:
             self._plan(*goal)
@@ -519,8 +524,9 @@ class Profile:
         self._offset = 0.0
 
     def _plan(self, interface, target_position, target_velocity, max_acceleration,
-              max_velocity=None):
-        """Plan a new segment from the current raw state; on error change nothing."""
+              max_velocity=None, max_jerk=None):
+        """Plan a new segment from the current raw state (`max_jerk` None: the profile's);
+        on error change nothing."""
         inp = self._inp
         inp.control_interface = interface
         inp.current_position = [self.raw_position]
@@ -536,7 +542,8 @@ class Profile:
         inp.max_velocity = [max_velocity]
         inp.max_acceleration = [max_acceleration]
         # ruckig rejects jerk 0 ("zero limits conflict"); inf is its trapezoid.
-        inp.max_jerk = [self.max_jerk if self.max_jerk > 0.0 else _INF]
+        jerk = self.max_jerk if max_jerk is None else max_jerk
+        inp.max_jerk = [jerk if jerk > 0.0 else _INF]
 
         traj = self._spare
         try:

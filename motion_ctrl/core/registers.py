@@ -337,14 +337,15 @@ AXIS_REGISTERS = (
        'Kollmorgen VOSPD (fault F08), CiA 402 0x6080 max motor speed', min=0.0),
     _r('max_acceleration', 'double', 1.5, 'm/s²', 'Move acceleration limit.',
        'Galil AC/DC, PMAC Ixx17', min=0.0, min_exclusive=True),
-    _r('max_jerk', 'double', 0.0, 'm/s³', 'Move jerk limit (0 = trapezoid).', 'PMAC Ixx19..21 '
-       'S-curve', min=0.0),
+    _r('max_jerk', 'double', 0.0, 'm/s³', 'Jerk limit of moves, jogs and STOPs (0 = trapezoid); '
+       'an ESTOP ramps at estop_deceleration.', 'PMAC Ixx19..21 S-curve', min=0.0),
     _r('smoothing', 'double', 1.0, '', 'Profile smoothing, first-order filter with pole 1 − IT '
        'per servo sample (1 = off).', 'Galil IT', min=0.004, max=1.0),
     _r('stop_deceleration', 'double', 2.0, 'm/s²', 'Deceleration of <axis>/stop.',
        'RMP STOP rate', min=0.0, min_exclusive=True),
-    _r('estop_deceleration', 'double', 10.0, 'm/s²', 'Deceleration of <axis>/estop.',
-       'RMP ESTOP rate', min=0.0, min_exclusive=True),
+    _r('estop_deceleration', 'double', 10.0, 'm/s²', 'Deceleration of <axis>/estop, a ramp '
+       '(max_jerk does not shape it).', 'RMP ESTOP rate, PMAC Ixx15', min=0.0,
+       min_exclusive=True),
     _r('soft_limit_min', 'double', -0.5, 'm', 'Targets below are refused (LIMIT bit).',
        'Galil BL, PMAC Ixx14'),
     _r('soft_limit_max', 'double', 0.5, 'm', 'Targets above are refused (LIMIT bit).',

@@ -262,6 +262,27 @@ def test_estop_during_move_may_exceed_max_acceleration_and_aborts_move():
     assert p.kind == 'idle' and not p.moving
 
 
+def test_a_stop_not_jerk_limited_is_a_ramp_at_its_rate_on_an_s_curve_profile():
+    """ESTOP (jerk_limited=False) on a jerk-limited profile: the acceleration steps to the
+    rate at once and the axis stops in v²/2d, not in the jerk-limited distance (at 20 m/s³
+    and 5 m/s², v = 0.1 m/s: 1 mm against 13.5 mm); a stall's re-plan keeps it a ramp."""
+    dec = 5.0
+    for stall in (False, True):
+        p = make(jerk=JMAX)
+        p.jog(VMAX)
+        run(p, until=lambda q: q.done)
+        x0 = p.position
+        p.stop(dec, jerk_limited=False)
+        rows = run(p, until=lambda q: q.raw_velocity < 0.05)
+        assert rows[0]['ra'] == pytest.approx(-dec)
+        if stall:
+            assert p.rebase(p.raw_position, p.raw_velocity)
+        rows += run(p)
+        assert p.kind == 'idle' and p.velocity == 0.0
+        assert max(abs(r['a']) for r in rows) <= dec * (1 + REL)
+        assert p.position - x0 == pytest.approx(VMAX ** 2 / (2 * dec), abs=1e-9)
+
+
 def test_hold_resets_to_rest():
     p = make(jerk=JMAX, smoothing=0.1)
     p.move_to(0.05)

@@ -130,11 +130,13 @@ def test_reset_on_a_healthy_axis_is_harmless(axis):
                          ids=['stop', 'estop'])
 def test_stop_during_a_long_move(axis, kind, bit):
     """x/stop (x/estop) during a 0.2 m move: the profile decelerates from cruise at
-    stop_deceleration (estop_deceleration) and the axis ends STOPPED (ESTOPPED) + MOTION_DONE,
-    still enabled, far from the abandoned target."""
+    stop_deceleration, jerk-limited by max_jerk (estop_deceleration, on a ramp) and the axis
+    ends STOPPED (ESTOPPED) + MOTION_DONE, still enabled, far from the abandoned target."""
     p = axis
-    registers = p.get_params('x.max_velocity', 'x.max_acceleration', f'x.{kind}_deceleration')
+    registers = p.get_params('x.max_velocity', 'x.max_acceleration', 'x.max_jerk',
+                             f'x.{kind}_deceleration')
     vmax, decel = registers['x.max_velocity'], registers[f'x.{kind}_deceleration']
+    jerk = registers['x.max_jerk'] if kind == 'stop' else 0.0
     assert vmax ** 2 / registers['x.max_acceleration'] < 0.05     # 0.2 m is long: it cruises
     target = far_target(p.position(), 0.2)
     t_publish = p.now()
@@ -158,7 +160,12 @@ def test_stop_during_a_long_move(axis, kind, bit):
     braking = max(t0, t1 - (vmax - abs(v1)) / decel)
     start = p0 + math.copysign(vmax, target - p0) * (braking - t0)
     distance = abs(final - start)
-    expected = vmax ** 2 / (2 * decel)
+    if not jerk:
+        expected = vmax ** 2 / (2 * decel)
+    elif decel ** 2 / jerk < vmax:                  # reaches the rate: v (v/d + d/j) / 2
+        expected = vmax * (vmax / decel + decel / jerk) / 2
+    else:                                           # all S: v sqrt(v/j)
+        expected = vmax * math.sqrt(vmax / jerk)
     assert 0.8 * expected <= distance <= 1.2 * expected + 4 * COUNT, \
         f'{kind}: stopped over {distance * 1e3:.3f} mm, expected {expected * 1e3:.3f} mm'
     assert all(abs(r[2]) <= vmax * (1 + 1e-9) for r in ref[cruise_end:])
