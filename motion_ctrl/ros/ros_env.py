@@ -10,6 +10,7 @@ coming up. Call before rclpy.init().
 """
 import faulthandler
 import fcntl
+import filecmp
 import itertools
 import os
 import re
@@ -57,11 +58,25 @@ LOOPBACK_UDP = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'loopbac
 
 def loopback_udp(environ=os.environ) -> dict:
     """The environment entry that gives a process's participants the loopback-UDP profile; {}
-    when the user chose a Fast DDS profile file of their own (theirs is kept). Fast DDS reads it
-    once per process, when its first participant is made: set it before the first node."""
-    if any(environ.get(k) and environ.get(k) != LOOPBACK_UDP for k in PROFILES_ENV):
+    when the user chose a Fast DDS profile file of their own (theirs is kept). A copy of this
+    one is not the user's: a tool run from the venv's install hands its nodes, which run from
+    the source tree, the install's copy. Fast DDS reads it once per process, when its first
+    participant is made: set it before the first node."""
+    if any(environ.get(k) and not _ours(environ[k]) for k in PROFILES_ENV):
         return {}
     return {PROFILES_ENV[0]: LOOPBACK_UDP}
+
+
+def _ours(path: str) -> bool:
+    """`path` is loopback_udp.xml: this module's, or a file of the same name and bytes."""
+    if path == LOOPBACK_UDP:
+        return True
+    if os.path.basename(path) != os.path.basename(LOOPBACK_UDP):
+        return False
+    try:
+        return filecmp.cmp(path, LOOPBACK_UDP, shallow=False)
+    except OSError:
+        return False
 
 
 def executor(context=None):

@@ -1,5 +1,7 @@
-"""ros_env: the shared-memory leftovers of dead DDS processes are removed, live ones kept."""
+"""ros_env: the shared-memory leftovers of dead DDS processes are removed, live ones kept; the
+loopback-UDP profile is set unless the user chose a profile file of their own."""
 import fcntl
+import shutil
 
 from motion_ctrl.ros import ros_env
 
@@ -25,3 +27,19 @@ def test_clean_zombie_shm_removes_only_what_dead_processes_left(tmp_path):
             f.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(live_segment + live_port + others)
     assert ros_env.clean_zombie_shm(str(tmp_path / 'missing')) == 0
+
+
+def test_the_loopback_profile_keeps_a_users_file_but_not_a_copy_of_its_own(tmp_path):
+    """A tool run from the venv's install hands its nodes (run from the source tree) its own
+    copy of loopback_udp.xml: that is not the user's file, the nodes keep the profile (before,
+    every demo's bus said "the servo bus runs on your Fast DDS profile file")."""
+    ours = {ros_env.PROFILES_ENV[0]: ros_env.LOOPBACK_UDP}
+    assert ros_env.loopback_udp({}) == ours
+    copy = tmp_path / 'site-packages' / 'loopback_udp.xml'
+    copy.parent.mkdir()
+    shutil.copy(ros_env.LOOPBACK_UDP, copy)
+    assert ros_env.loopback_udp({ros_env.PROFILES_ENV[1]: str(copy)}) == ours
+    users = tmp_path / 'loopback_udp.xml'                  # the same name, another profile
+    users.write_text('<profiles/>')
+    assert ros_env.loopback_udp({ros_env.PROFILES_ENV[0]: str(users)}) == {}
+    assert ros_env.loopback_udp({ros_env.PROFILES_ENV[0]: str(tmp_path / 'mine.xml')}) == {}
