@@ -121,6 +121,8 @@ class Axis(AxisCommands):
         self.following_error = 0.0
         # A stall's plan was made from its sample's mean speed: planned again on the next one.
         self._replan_due = False
+        # A stall whose sample is as old as it: planned from the first new sample instead.
+        self._stale_stall = False
         self._loop_cmd = self._loop_pos = self._loop_acc = 0.0   # this tick's loop terms
         self.correction = 0.0        # backlash + leadscrew correction on the motor command
         # Sampled dual loop (Galil): motor target = user target + offset.
@@ -226,6 +228,7 @@ class Axis(AxisCommands):
     # -- internals ------------------------------------------------------------------------------
     def _open_loop(self):
         self.enabled = False
+        self._stale_stall = False
         self._stopping = 0
         self.sampled.cancel()
         self.servo.reset()
@@ -381,8 +384,15 @@ class Axis(AxisCommands):
         error against the command at the sample's time."""
         p = self.profile
         if dt > self._stall:
-            self._after_stall()
             self._replan_due = True
+            if sample_dt > 0.0:
+                self._after_stall()
+            else:                   # no sample since the stall yet: the output is held
+                self._stale_stall = True
+                p.step(self._stall if p.kind == 'path' else dt)
+        elif self._stale_stall and sample_dt > 0.0:
+            self._stale_stall = False
+            self._after_stall()
         elif self._replan_due and 0.0 < sample_dt <= self._stall:
             self._replan_due = False
             if not (p.moving and self._replan(abs(p.velocity))):
@@ -413,7 +423,11 @@ class Axis(AxisCommands):
     def _after_stall(self) -> None:
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
         measured state, in the profile's frame; a path stepped on by STALL_PERIODS only. The
-        stall's sample gives the mean speed over the stall, not the speed now (the amplifier's
+        state is a new sample's: when the tick after the stall has none (the encoders' process
+        was held up with the loop, and its samples of the stall wait behind this tick), the
+        plan waits for the first that comes (`_stale_stall`; the output is held till then),
+        since the last one is as old as the stall and the slide ran on from it. The stall's
+        sample gives the mean speed over the stall, not the speed now (the amplifier's
         watchdog may have braked the slide within it): the next sample's plan replaces this
         one (`_replan_due`), before the command runs ahead of a slide that is slower; never
         faster than this one (a single sample's speed carries the motor's ringing)."""

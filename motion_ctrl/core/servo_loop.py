@@ -526,13 +526,13 @@ class ServoLoop:
         prev = ch.used
         sample_dt = None if prev != prev else _ns(stamp - prev)
         ch.used = stamp
-        age = min(max(now - stamp, 0.0), 3 * self.period)
+        age = max(now - stamp, 0.0)
         if not self._age_recorded:       # (once a tick: one message carries every axis)
             self._age_recorded = True
             if sample_dt == 0.0:
                 self.stats.ticks_without_sample += 1
             else:
-                self.stats.feedback_age(age)
+                self.stats.feedback_age(min(age, 3 * self.period))
         return ch.axis.update(dt, io.motor, io.load, sample_dt=sample_dt, age=age)
 
     def _report(self, ch: _Channel, out: Tick) -> None:

@@ -37,12 +37,17 @@ _DONE = int(Status.MOTION_DONE)
 
 class TwoClockHardware(HardwareInterface):
     """One slide (axis `axis`) ticking at `plant_ticks` [s], behind a transport: samples reach
-    the loop `d_in` after their tick, commands reach the plant `d_out` after the loop's."""
+    the loop `d_in` after their tick, commands reach the plant `d_out` after the loop's.
+    `held_samples` (start, end) [s]: the samples taken within it reach the loop only `d_in`
+    after `end` (both processes held up: the samples of the hold-up wait behind the loop's
+    first tick after it)."""
     kind = 'two_clocks'
 
     def __init__(self, axis: str, plant: dict, plant_ticks: list[float], d_in: float,
-                 d_out: float, substep_rate: float = 20000.0) -> None:
+                 d_out: float, substep_rate: float = 20000.0,
+                 held_samples: tuple[float, float] | None = None) -> None:
         super().__init__((axis,))
+        self.held_samples = held_samples
         self.plant = SlidePlant(substep_rate=substep_rate, **plant)
         self.ticks = plant_ticks
         self.d_in = d_in
@@ -58,7 +63,7 @@ class TwoClockHardware(HardwareInterface):
     def read(self, now: float) -> None:
         """Run the plant through every tick whose sample has reached the loop by `now`."""
         plant, ticks, sent = self.plant, self.ticks, self.sent
-        while self.next < len(ticks) and ticks[self.next] + self.d_in <= now:
+        while self.next < len(ticks) and self._arrival(ticks[self.next]) <= now:
             t = ticks[self.next]
             while self.applied < len(sent) and sent[self.applied][0] <= t:
                 plant.command(sent[self.applied][1])
@@ -68,6 +73,12 @@ class TwoClockHardware(HardwareInterface):
             self.next += 1
             m, load = plant.encoder_counts()
             self.slide.sample(m, load, t)
+
+    def _arrival(self, tick: float) -> float:
+        held = self.held_samples
+        if held is not None and held[0] <= tick <= held[1]:
+            return held[1] + self.d_in
+        return tick + self.d_in
 
     def write(self, now: float) -> None:
         if self.slide.commanded:
