@@ -31,12 +31,13 @@ from std_msgs.msg import Bool  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
-from kit import COUNT, INCH, running_slide, spin_for  # noqa: E402
+from kit import COUNT, INCH, SERVO_LINK_STALLS, running_slide, spin_for  # noqa: E402
 from motion_ctrl.ros.client import FAULTS, SlideClient  # noqa: E402
 from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 from motion_ctrl.core.registers import PLANT_AXIS  # noqa: E402
 
-# No rerun on a stall of the servo link (faults of the link are these tests' subject).
+# No rerun on a stall of the servo link (faults of the link are these tests' subject), but for
+# one logged before a test's stop: that is its premise's, the slide cruising (_stop_instant).
 pytestmark = pytest.mark.servo_link_under_test
 
 try:                            # the project venv has pytest-timeout: a hung wait fails, not hangs
@@ -128,6 +129,25 @@ def _cruise(client):
         f'the axis faulted while cruising, before the stop: {word!r}'
 
 
+def _stop_instant(request, slide) -> float:
+    """Now (time.time(), the stamps' clock): the instant of the test's stop. A stall of the
+    servo link the nodes logged before it (the plant's watchdog, FEEDBACK_FAULT) broke the
+    premise, the slide cruising on its loop, not the stop under test: noted on the test at its
+    end, so that the test runs once more if it failed (conftest), as any test of the suite."""
+    t = time.time()
+
+    def note() -> None:
+        for node in ('plant', 'controller'):
+            for line in slide.log(node).splitlines():
+                stamp = re.search(r'\[(\d{9,}\.\d+)\]', line)
+                stall = any(x in line for x in SERVO_LINK_STALLS)
+                if stall and stamp and float(stamp.group(1)) < t:
+                    request.node.servo_link_stalled = line
+                    return
+    request.addfinalizer(note)
+    return t
+
+
 def _after_stop(client, t_stop: float) -> dict:
     """Once the truth and the amplifier output are in for 1 s past t_stop (waited for: through
     a bridge on a loaded machine the copies lag), measure from t_stop on: time to 0 V (from the
@@ -201,12 +221,12 @@ def _check(m: dict, watchdog: bool) -> None:
     assert m['rest_after_stop'] <= 0.5, m
 
 
-def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
+def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(request, slide):
     """SIGKILL: nothing of the controller runs any more; the plant's command watchdog puts the
     output to 0 V after command_timeout, says so on x/amplifier_fault, and brakes."""
     client = slide.client
     _cruise(client)
-    t_stop = time.time()                          # ROS time in real time: the stamps' clock
+    t_stop = _stop_instant(request, slide)
     os.kill(slide.controller.servo_pid(), signal.SIGKILL)     # the servo loop's own process
     m = _after_stop(client, t_stop)
     assert client.fault is True
@@ -217,12 +237,12 @@ def test_sigkill_mid_move_the_plant_watchdog_stops_the_slide(slide):
     assert abs(error) <= 1.0
 
 
-def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(slide):
+def test_sigint_mid_move_the_controller_commands_0_volts_and_disables(request, slide):
     """SIGINT (Ctrl-C, launch's stop): the controller itself opens the loop and commands 0 V
     before it exits (code 0); the plant's watchdog then brakes the slide."""
     client = slide.client
     _cruise(client)
-    t_stop = time.time()
+    t_stop = _stop_instant(request, slide)
     slide.controller.proc.send_signal(signal.SIGINT)
     m = _after_stop(client, t_stop)
     assert slide.controller.proc.wait(5.0) == 0
@@ -246,7 +266,7 @@ def bus_slide(own_domain, tmp_path, monkeypatch):
         yield s
 
 
-def test_sigkill_of_the_process_started_kills_the_loop_cleanly(bus_slide):
+def test_sigkill_of_the_process_started_kills_the_loop_cleanly(request, bus_slide):
     """SIGKILL of the process the user started (the bridge, ros.servo_bus): the kernel tells the
     servo loop's process (PR_SET_PDEATHSIG), which opens the loop and commands 0 V before it
     goes, as on SIGINT: no amplifier is left on its last command."""
@@ -255,7 +275,7 @@ def test_sigkill_of_the_process_started_kills_the_loop_cleanly(bus_slide):
     servo = slide.controller.servo_pid()
     assert servo != slide.controller.proc.pid, 'no servo bus: the loop runs in the killed process'
     _cruise(client)
-    t_stop = time.time()
+    t_stop = _stop_instant(request, slide)
     slide.controller.proc.send_signal(signal.SIGKILL)
     m = _after_stop(client, t_stop)
     _wait_gone(servo)
