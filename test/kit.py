@@ -58,13 +58,18 @@ def spin_for(client, seconds: float) -> None:
 SERVO_LINK_STALLS = ('FEEDBACK_FAULT: no new encoder sample', 'amplifier fault: no command')
 
 
+def stall_line(*texts: str) -> str:
+    """The first line of `texts` that says the servo link stalled ('' for none)."""
+    return next((line for text in texts for line in text.splitlines()
+                 if any(s in line for s in SERVO_LINK_STALLS)), '')
+
+
 def link_stall(item, *texts: str) -> str:
     """The first line of `texts` that says the servo link stalled ('' for none, or for a test
     marked servo_link_under_test)."""
     if item.get_closest_marker('servo_link_under_test') is not None:
         return ''
-    return next((line for text in texts for line in text.splitlines()
-                 if any(s in line for s in SERVO_LINK_STALLS)), '')
+    return stall_line(*texts)
 
 
 def note_link_stalls(request, *texts: str) -> None:

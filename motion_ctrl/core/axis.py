@@ -386,17 +386,16 @@ class Axis(AxisCommands):
         if dt > self._stall:
             self._replan_due = True
             if sample_dt > 0.0:
-                self._after_stall()
+                self._replan_or_step(self._stall)
             else:                   # no sample since the stall yet: the output is held
                 self._stale_stall = True
                 p.step(self._stall if p.kind == 'path' else dt)
         elif self._stale_stall and sample_dt > 0.0:
             self._stale_stall = False
-            self._after_stall()
+            self._replan_or_step(self._stall)
         elif self._replan_due and 0.0 < sample_dt <= self._stall:
             self._replan_due = False
-            if not (p.moving and self._replan(abs(p.velocity))):
-                p.step(dt)
+            self._replan_or_step(dt, abs(p.velocity))
         else:
             p.step(dt)
         if self._guard:
@@ -420,9 +419,10 @@ class Axis(AxisCommands):
         self._loop_pos = loop_pos
         self.following_error = loop_cmd - loop_pos
 
-    def _after_stall(self) -> None:
+    def _replan_or_step(self, step: float, most: float = math.inf) -> None:
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
-        measured state, in the profile's frame; a path stepped on by STALL_PERIODS only. The
+        measured state, in the profile's frame, starting at most `most` fast [m/s]; a path
+        (or a profile at rest) stepped on by `step` [s], after a stall STALL_PERIODS only. The
         state is a new sample's: when the tick after the stall has none (the encoders' process
         was held up with the loop, and its samples of the stall wait behind this tick), the
         plan waits for the first that comes (`_stale_stall`; the output is held till then),
@@ -432,12 +432,9 @@ class Axis(AxisCommands):
         one (`_replan_due`), before the command runs ahead of a slide that is slower; never
         faster than this one (a single sample's speed carries the motor's ringing)."""
         p = self.profile
-        if not (p.moving and self._replan()):
-            p.step(self._stall)
-
-    def _replan(self, most: float = math.inf) -> bool:
-        """The move, jog or stop planned again from the measured state (Profile.rebase),
-        starting at most `most` fast [m/s]."""
+        if not p.moving:
+            p.step(step)
+            return
         if self._motor_side:
             position, velocity = self.motor_pos - self.correction, self.motor_vel
         else:
@@ -445,7 +442,8 @@ class Axis(AxisCommands):
             velocity = self.load_vel if self._vel_on_load else self.motor_vel
         if abs(velocity) > most:
             velocity = math.copysign(most, velocity)
-        return self.profile.rebase(position, velocity)
+        if not p.rebase(position, velocity):
+            p.step(step)
 
     def _overspeed_fault(self) -> None:
         """1a. The measured motor velocity (in load units) beyond overspeed_velocity: a drive's

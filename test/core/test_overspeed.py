@@ -135,8 +135,6 @@ def test_overspeed_velocity_is_a_register_above_max_velocity():
         assert bool(loop.axes['x'].status & S.OVERSPEED) == faults, limit
 
 
-
-
 def _moves_with_late_ticks(seed: int, share: float = 0.02, most: int = 25):
     """The shipped slide's moves back and forth (+1, +2 in, three times) with `share` of the
     ticks coming 1 to `most` periods late, at random (`seed`), while the slide runs on.

@@ -31,7 +31,7 @@ from std_msgs.msg import Bool  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
-from kit import COUNT, INCH, SERVO_LINK_STALLS, running_slide, spin_for  # noqa: E402
+from kit import COUNT, INCH, running_slide, spin_for, stall_line  # noqa: E402
 from motion_ctrl.ros.client import FAULTS, SlideClient  # noqa: E402
 from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 from motion_ctrl.core.registers import PLANT_AXIS  # noqa: E402
@@ -136,14 +136,13 @@ def _stop_instant(request, slide) -> float:
     end, so that the test runs once more if it failed (conftest), as any test of the suite."""
     t = time.time()
 
+    def before(text: str) -> str:
+        return '\n'.join(line for line in text.splitlines()
+                         if (m := re.search(r'\[(\d{9,}\.\d+)\]', line)) and float(m[1]) < t)
+
     def note() -> None:
-        for node in ('plant', 'controller'):
-            for line in slide.log(node).splitlines():
-                stamp = re.search(r'\[(\d{9,}\.\d+)\]', line)
-                stall = any(x in line for x in SERVO_LINK_STALLS)
-                if stall and stamp and float(stamp.group(1)) < t:
-                    request.node.servo_link_stalled = line
-                    return
+        request.node.servo_link_stalled = stall_line(
+            *(before(slide.log(node)) for node in ('plant', 'controller')))
     request.addfinalizer(note)
     return t
 
