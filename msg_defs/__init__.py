@@ -37,9 +37,13 @@ def __getattr__(name: str):
     if module is None:
         raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
     import importlib
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+    loaded = importlib.import_module(module)
+    # Every name of that module at once: importing `msg_defs.joint_state` binds the package's
+    # `joint_state` to the module, which would hide the function of that name from here on.
+    for lazy, where in _LAZY.items():
+        if where == module:
+            globals()[lazy] = getattr(loaded, lazy)
+    return globals()[name]
 
 
 __all__ = [

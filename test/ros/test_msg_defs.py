@@ -1,6 +1,9 @@
 """msg_defs streams: a publish the middleware refuses is counted and reported, never raised (a
 slow observer must not kill the servo loop: seen as "Failed to publish: cannot publish data"
-ending the controller in its tick)."""
+ending the controller in its tick); the lazily loaded helpers."""
+import subprocess
+import sys
+
 import msg_defs as md
 
 
@@ -37,3 +40,14 @@ def test_a_plain_stream_sends_and_says_whether_it_did():
     assert ok.send(object()) and ok.failures == 0
     refused = md.Stream(RefusingPublisher())       # no on_error: counted only
     assert not refused.send(object()) and refused.failures == 1
+
+
+def test_the_helpers_are_functions_whichever_is_used_first():
+    """`md.Stream` first imports the module `msg_defs.joint_state`, whose import binds the
+    package's `joint_state` to the module: the function must still be what `md.joint_state`
+    gives (a fresh interpreter, so that the order is this one)."""
+    code = ('import msg_defs as md; md.Stream; '
+            'print(callable(md.joint_state) and md.joint_state.__name__)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == 'joint_state'
