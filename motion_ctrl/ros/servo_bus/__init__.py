@@ -40,6 +40,7 @@ import time
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.task import Future
 
 from motion_ctrl.ros import ros_env
 from motion_ctrl.ros.processes import child_preexec, source_env
@@ -174,6 +175,7 @@ class _Bus:
                 self.bridge.servo_out)):
             executor.add_node(node)
         self.running = True
+        self.closing: Future = Future()
         self.threads = [threading.Thread(target=self._spin, args=(e,), daemon=True)
                         for e in self.executors]
         for t in self.threads:
@@ -184,12 +186,21 @@ class _Bus:
             time.sleep(0.1)
 
     def _spin(self, executor) -> None:
+        if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
+            # rclpy's own executors build their wait set anew, in Python, over every entity
+            # of their nodes each time they wake (~40 ms for 256 axes' services here): they
+            # wait for work only, and close() wakes them.
+            executor.spin_until_future_complete(self.closing)
+            return
         # (spin_once: EventsExecutor.spin() busy-waits in rclpy 9.1, ros_env says so)
         while self.running:
             executor.spin_once(timeout_sec=0.05)
 
     def close(self) -> None:
         self.running = False         # the threads leave their executors before these go
+        self.closing.set_result(True)
+        for e in self.executors[1:3]:
+            e.wake()
         for t in self.threads:
             t.join(2.0)
         for e in self.executors:
