@@ -47,7 +47,7 @@ from motion_ctrl.ros.sim_clock import SimClock
 from motion_ctrl.ros.targets import (MAX_SCHEDULE, MAX_TARGET_NAMES, MAX_TRAJECTORY_POINTS,
                                      TargetInputs)
 from motion_ctrl.core.axis import Axis
-from motion_ctrl.ros.diagnostics import diagnostics_message
+from motion_ctrl.ros.diagnostics import Diagnostics
 from motion_ctrl.core.feedback_sync import FeedbackSync
 from motion_ctrl.core.servo_loop import ServoLoop
 from motion_ctrl.core.registers import (AXIS_REGISTERS, CONTROLLER_AXIS, CONTROLLER_GLOBALS,
@@ -124,7 +124,8 @@ class ControllerNode(ros_params.RegisterNode):
         self.pub_motor = self.stream(JointState, md.MOTOR_STATES, refresh=READERS_REFRESH)
         self.pub_status = {a: self.stream(UInt32, md.status_topic(a), md.STATUS_QOS)
                            for a in self.axis_names}
-        self.pub_diag = self.stream(DiagnosticArray, md.DIAGNOSTICS, 10)
+        self.diagnostics = Diagnostics(self.stream(DiagnosticArray, md.DIAGNOSTICS, 10),
+                                       self.get_name(), self.axes)
 
     def _make_inputs(self) -> None:
         """The target topics, the excitation runs, each axis's services and the
@@ -306,6 +307,7 @@ class ControllerNode(ros_params.RegisterNode):
             self.pub_status[a].send(UInt32(data=self.axes[a].word))
         self._refresh_status(now)
         self.follow.tick(now)            # the trajectory goal, after the outputs (never waits)
+        self.diagnostics.tick(stamp)     # the next part of the axes' statuses, if any
         self.stats.work(time.perf_counter() - t_start)
 
     def _refresh_status(self, now: float) -> None:
@@ -371,8 +373,7 @@ class ControllerNode(ros_params.RegisterNode):
         figures = getattr(self.hardware, 'figures', None)
         if figures is not None:
             extra |= figures()
-        self.pub_diag.send(diagnostics_message(
-            self.get_clock().now().to_msg(), self.get_name(), self.stats, self.axes, extra))
+        self.diagnostics.start(self.get_clock().now().to_msg(), self.stats, extra)
         self.stats.reset_window()
 
 
