@@ -221,12 +221,17 @@ CONTROLLER_GLOBALS = (
        'per axis, set by the plant registers on this node (<axis>.slide_mass, ..., and '
        'substep_rate; a params file\'s plant: section counts too); it publishes plant_states, '
        'amplifier_states and <axis>/amplifier_fault as the plant node does, and with '
-       'use_sim_time it is the clock: it runs as fast as the machine allows and publishes '
+       'use_sim_time it is the clock: it runs up to sim_speed times real time and publishes '
        '/clock. canopen: CiA 402 drives in cyclic synchronous torque mode on one CAN bus '
        '(can_interface, can_channel, can_bitrate; per axis can_node_id, load_encoder_node_id, '
        'eds, torque_per_volt; doc/canopen.md); this node is the SYNC producer.',
        'ros2_control hardware component, LinuxCNC HAL, PMAC servo interrupt',
        choices=('topics', 'sim', 'canopen'), read_only=True),
+    _r('sim_speed', 'double', 4.0, '', 'With hardware sim and use_sim_time (this node the '
+       'clock): sim seconds per wall second at most; 0: as fast as the machine allows (about '
+       '20x real time for one axis here). A tool reading the streams keeps up at 4; faster, its '
+       'readings of a move lag the move and its targets land at times set by its own lag.',
+       'Gazebo real_time_factor', min=0.0, max=1000.0),
     # follow_joint_trajectory and controller_state (motion_ctrl.ros.follow_action)
     _r('action_monitor_rate', 'double', 20.0, 'Hz', 'Rate of the follow_joint_trajectory '
        'feedback (desired, actual and error of the running goal\'s axes).',

@@ -167,7 +167,8 @@ class ControllerNode(ros_params.RegisterNode):
             self.sync = FeedbackSync(self.period)
         self.own_clock: SimClock | None = None
         if self.sim_clock:
-            self.own_clock = SimClock(self, self.period_ns, self._tick, self._publish_diagnostics)
+            self.own_clock = SimClock(self, self.period_ns, self._tick, self._publish_diagnostics,
+                                      self.get_parameter('sim_speed').value)
         else:
             self.diag_timer = self.create_timer(1.0, self._publish_diagnostics)
 
@@ -190,6 +191,8 @@ class ControllerNode(ros_params.RegisterNode):
         for p in params:
             if p.name == 'feedback_timeout':
                 self.loop.feedback_timeout = p.value
+            if p.name == 'sim_speed' and self.own_clock is not None:
+                self.own_clock.set_speed(p.value)
         for axis, changes in self.axis_changes(params).items():
             own = self.hardware_values[axis]
             hw = {k: v for k, v in changes.items() if k in own}

@@ -5,7 +5,8 @@ Two forms:
 
 * `hardware: sim` (the default here): the controller alone, with the slide simulated inside its
   loop and its own sim clock (`use_sim_time: true`): it ticks back to back as fast as the machine
-  allows, up to 4x real time (sim_clock.MAX_SIM_SPEED), and publishes `/clock`.
+  allows, up to `sim_speed` times real time (4 unless set; 0: unbounded), and publishes
+  `/clock`.
 * `hardware: topics`: plant (`lockstep: 1`, the clock) and controller (`use_sim_time: true`,
   ticking on encoder samples) as two processes exchanging `encoders` and `command` over DDS.
 
@@ -42,12 +43,20 @@ PLANT = {'lockstep': 1, 'realtime_priority': 0}
 # domain and port can read an earlier run's last samples from them: a stale /clock would end the
 # run at once (doc/design_notes.md, "Shared memory left by killed processes").
 NODE_ENV = {'MOTION_CTRL_SERVO_DOMAIN': 'off'}
+# With the slide in the controller (sim) its publishers send from Fast DDS's own thread: a
+# publish only queues the sample, and the sends (two system calls a datagram, the costliest
+# part of a lockstep tick here: ~30 of its ~48 µs to a reliable reader) run on the other core;
+# no loop closes over these streams. Not for topics, where each tick waits for the other
+# process's answer and the hand-over's latency slows the sim (2.2-2.3x against 2.4-2.7x).
+SIM_ENV = {'RMW_FASTRTPS_PUBLICATION_MODE': 'ASYNCHRONOUS'}
 
 
-def node_env(env: dict | None = None) -> dict:
+def node_env(env: dict | None = None, hardware: str = 'topics') -> dict:
     """`env` (default: this process's) for a lockstep node: off the bus, and announcing
-    loopback UDP only (ros_env.loopback_udp: no shared-memory port to leave behind)."""
-    env = dict(os.environ if env is None else env) | NODE_ENV
+    loopback UDP only (ros_env.loopback_udp: no shared-memory port to leave behind); the
+    controller of `hardware` sim publishing asynchronously (SIM_ENV)."""
+    env = dict(os.environ if env is None else env) | NODE_ENV | (
+        SIM_ENV if hardware == 'sim' else {})
     return env | ros_env.loopback_udp(env)
 
 
@@ -67,7 +76,7 @@ def start_slide(controller_params: dict | None = None, plant_params: dict | None
     resends its sample until answered)."""
     if hardware == 'sim':
         return processes.start_sim((controller_params or {}) | CONTROLLER, plant_params,
-                                   log_dir, env=node_env(env))
+                                   log_dir, env=node_env(env, 'sim'))
     return processes.start_slide((controller_params or {}) | CONTROLLER,
                                  (plant_params or {}) | PLANT, log_dir, env=node_env(env))
 
@@ -136,7 +145,8 @@ class _Observer:
 
 
 def run_lockstep(target: float = 0.0254, start: float = 20.0, duration: float = 2.0,
-                 timeout: float = 60.0, log_dir=None, hardware: str = 'topics'):
+                 timeout: float = 60.0, log_dir=None, hardware: str = 'topics',
+                 sim_speed: float | None = None):
     """A move to `target` in the lockstep simulation. Returns ({ns from the move's start:
     (x_motor, x_load, v_motor, v_load)}, sim seconds per wall second), the slide's truth from
     the move's start to `duration` s after it.
@@ -147,16 +157,17 @@ def run_lockstep(target: float = 0.0254, start: float = 20.0, duration: float = 
     3 s, ~10 s of sim time: keep `start` well after that). With `hardware` sim the controller
     is the clock and runs from its start: the move starts `start` s of sim time after its clock
     as this observer first reads it, at a whole second. Either way the slide rests until then
-    and the move is the same, tick for tick.
+    and the move is the same, tick for tick. `sim_speed` (sim): the controller's register.
     """
     d = params_dir()
     domain = ros_env.spare_domain()
-    env = node_env(os.environ | {'ROS_DOMAIN_ID': str(domain)})
+    env = node_env(os.environ | {'ROS_DOMAIN_ID': str(domain)}, hardware)
     obs = _Observer(client_context(domain))
     plant = None
     sim = hardware == 'sim'
     controller = NodeProcess('controller_node', [d / 'controller.yaml'] + (
-        [d / 'plant.yaml'] if sim else []), CONTROLLER | ({'hardware': 'sim'} if sim else {}),
+        [d / 'plant.yaml'] if sim else []), CONTROLLER | ({'hardware': 'sim'} if sim else {})
+        | ({} if sim_speed is None else {'sim_speed': float(sim_speed)}),
         log_file(log_dir, 'controller'), env=env)
     try:
         start = obs.send_target(target, start, sim)
@@ -198,4 +209,6 @@ def _truth(raw: list, start: float, duration: float):
 
 
 def bench_lockstep(hardware: str = 'topics') -> float:
-    return run_lockstep(hardware=hardware)[1]
+    """Sim seconds per wall second of a lockstep move; with `hardware` sim unbounded
+    (`sim_speed` 0)."""
+    return run_lockstep(hardware=hardware, sim_speed=0.0 if hardware == 'sim' else None)[1]

@@ -1,7 +1,11 @@
 """The controller as the clock (`hardware: sim` with `use_sim_time`): it ticks back to back, as
-fast as the machine allows up to MAX_SIM_SPEED times real time, publishes `/clock`, and runs the
-callbacks that came (targets, services, parameters) between batches of ticks (SIM_BATCH s of
-wall time): deterministic for targets stamped ahead. Its /clock is published once a batch.
+fast as the machine allows up to `sim_speed` times real time (0: unbounded), publishes `/clock`,
+and runs the callbacks that came (targets, services, parameters) between batches of ticks
+(SIM_BATCH s of wall time): deterministic for targets stamped ahead. Its /clock is published
+once a batch. `sim_speed` is 4 unless set: a client reading the streams (a tool placing a
+move's status words among the joint_states samples, a recorder) keeps up; unbounded (~20x real
+time here), a tool's readings of a move lag it by tens to hundreds of ms of sim time, and its
+targets land at times set by its own lag.
 """
 from __future__ import annotations
 
@@ -14,11 +18,6 @@ from motion_ctrl.ros.hardware_topics import stamp_of
 
 # s of wall time the sim clock ticks before it runs the callbacks
 SIM_BATCH = 0.001
-# sim seconds per wall second at most: a client reading the streams (a tool placing a move's
-# status words among the joint_states samples, a recorder) keeps up; unbounded (~14x real time
-# here), a tool's readings of a move lag it by tens to hundreds of ms of sim time, and its
-# targets land at times set by its own lag
-MAX_SIM_SPEED = 4.0
 
 
 class SimClock:
@@ -26,8 +25,9 @@ class SimClock:
     report (in sim seconds). The node's clock is set to the ticks' time; it does not read
     /clock, which it would only hear from itself."""
 
-    def __init__(self, node, period_ns: int, tick, diagnostics) -> None:
+    def __init__(self, node, period_ns: int, tick, diagnostics, speed: float) -> None:
         self.node = node
+        self.speed = speed
         self.period_ns = period_ns
         self.tick = tick
         self.diagnostics = diagnostics
@@ -38,26 +38,37 @@ class SimClock:
         node._time_source.detach_node()
         node._time_source.clock_callback(ClockMsg())
 
+    def set_speed(self, speed: float) -> None:
+        """`sim_speed` changed: counted from now."""
+        self.speed = speed
+        if speed > 0.0:
+            self.wall_start = time.perf_counter() - self.sim_ns * 1e-9 / speed
+
     def spin_step(self, executor) -> None:
         """Servo ticks back to back for SIM_BATCH s of wall time (none while the sim time is
-        ahead of MAX_SIM_SPEED x the wall time since the start), then /clock (the time of the
+        ahead of `speed` x the wall time since the start), then /clock (the time of the
         last tick: ~1 kHz of wall time, as a simulator publishes it; one message per tick would
         cost every reader of /clock more than the tick itself) and the callbacks that came
         meanwhile."""
-        ahead = self.sim_ns * 1e-9 / MAX_SIM_SPEED - (time.perf_counter() - self.wall_start)
-        if ahead > 0.0:                 # (at MAX_SIM_SPEED: callbacks only, until it is time)
-            executor.spin_once(timeout_sec=min(ahead, SIM_BATCH))
-            return
-        if ahead < -SIM_BATCH:          # behind (a busy machine): on from now, not in a burst
-            self.wall_start = time.perf_counter() - self.sim_ns * 1e-9 / MAX_SIM_SPEED
+        speed = self.speed
+        if speed > 0.0:
+            ahead = self.sim_ns * 1e-9 / speed - (time.perf_counter() - self.wall_start)
+            if ahead > 0.0:             # (at full speed: callbacks only, until it is time)
+                executor.spin_once(timeout_sec=min(ahead, SIM_BATCH))
+                return
+            if ahead < -SIM_BATCH:      # behind (a busy machine): on from now, not in a burst
+                self.wall_start = time.perf_counter() - self.sim_ns * 1e-9 / speed
         end = time.perf_counter() + SIM_BATCH
+        # the batch ends at SIM_BATCH of wall time, or where the bound stands at its end
+        last_ns = (round((end - self.wall_start) * speed * 1e9) if speed > 0.0
+                   else None)
         while True:
             self.tick(stamp_of(self.sim_ns * 1e-9))
             if self.sim_ns >= self.next_diagnostics_ns:
                 self.next_diagnostics_ns += 1_000_000_000
                 self.diagnostics()
             self.sim_ns += self.period_ns
-            if time.perf_counter() >= end:
+            if time.perf_counter() >= end or (last_ns is not None and self.sim_ns > last_ns):
                 break
         clock = ClockMsg(clock=stamp_of((self.sim_ns - self.period_ns) * 1e-9))
         self.pub_clock.publish(clock)

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     if 'dds' in sections:
         report_dds(a.rates, a.axes, hardwares, a.seconds, a.moving)
     if 'lockstep' in sections:
-        print('\n## lockstep (one axis, the 1-inch move)\n')
+        print('\n## lockstep (one axis, the 1-inch move; sim: sim_speed 0, unbounded)\n')
         for hw in hardwares:
             speed = bench_lockstep(hw)
             print(f'{hw}: sim seconds per wall second: {speed:.2f}', flush=True)
