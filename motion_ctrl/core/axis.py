@@ -392,7 +392,7 @@ class Axis(AxisCommands):
                 p.step(self._stall if p.kind == 'path' else dt)
         elif self._stale_stall and sample_dt > 0.0:
             self._stale_stall = False
-            self._replan_or_step(self._stall)
+            self._replan_or_step(dt)      # (the stall's own tick stepped it over the stall)
         elif self._replan_due and 0.0 < sample_dt <= self._stall:
             self._replan_due = False
             self._replan_or_step(dt, abs(p.velocity))

@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from motion_ctrl.core.axis import Axis
+from motion_ctrl.core.axis import STALL_PERIODS, Axis
 from motion_ctrl.core.config import OVERSPEED_RATIO
 from motion_ctrl.core.registers import (AXIS_REGISTERS, INCH, LOAD_COUNTS_PER_M,
                                         SHIPPED_SLIDE_TUNING, axis_defaults, consistency)
@@ -177,3 +177,43 @@ def test_late_ticks_at_random_neither_sprint_nor_trip():
         worst = max(worst, fastest)
         assert len(errors) == 6 and all(abs(e) <= 1.0 for e in errors), (seed, errors)
     assert worst < 0.12, worst
+
+
+def _path_after_a_stall(stall_ticks: int | None):
+    """A trajectory on a fed loop (the slide's samples follow the command exactly): the
+    commanded (unsmoothed) path position after tick 100, then, with `stall_ticks`, the loop held
+    up that many periods, a tick with no new sample (the encoders' process was held up with the
+    loop) and a tick with one; without, ticks as they come. Returns the raw command after each
+    tick from 100 on."""
+    loop = _fed_loop()
+    axis = loop.axes['x']
+    motor_cpm = axis.r['motor_counts_per_m']
+
+    def fed_tick(k, fresh=True):
+        x = axis.profile.raw_position
+        if fresh:
+            loop.feedback('x', round(x * motor_cpm), round(x * LOAD_COUNTS_PER_M), k * T)
+        loop.tick(k * T)
+        return axis.profile.raw_position
+    for k in range(5):
+        fed_tick(k)
+    assert loop.trajectory({'names': ['x'], 'times': [1.0], 'positions': [[0.02]],
+                            'velocities': [[0.0]], 'accelerations': []}) is None
+    for k in range(5, 100):
+        fed_tick(k)
+    if stall_ticks is None:
+        return [fed_tick(k) for k in range(100, 120)]
+    k = 100 + stall_ticks
+    return [fed_tick(k, fresh=False), fed_tick(k + 1)]
+
+
+def test_a_path_resumes_after_a_stall_whose_tick_had_no_sample_one_period_a_tick():
+    """A trajectory is stepped STALL_PERIODS over a stall (the rest of the stall is lost, the
+    path runs that much later; no sprint): over a 10 ms stall whose first tick had no new
+    sample, the path stands STALL_PERIODS on at that tick and one period further at the next,
+    as a tick that comes in time steps it. (It was stepped STALL_PERIODS again at the next
+    tick: 5 ms of path in one period, a jump of the command.)"""
+    steady = _path_after_a_stall(None)          # after ticks 100, 101, ...
+    stale, fresh = _path_after_a_stall(10)      # ticks 99, then 110 (stale) and 111
+    assert stale == pytest.approx(steady[STALL_PERIODS - 1], abs=1e-12)
+    assert fresh == pytest.approx(steady[STALL_PERIODS], abs=1e-12)
