@@ -16,8 +16,6 @@ import pathlib
 import re
 import shutil
 import signal
-import socket
-import struct
 import subprocess
 import time
 from typing import cast
@@ -305,43 +303,6 @@ def test_no_process_of_the_servo_bus_opens_a_shared_memory_port(bus_slide):
             for k, pid in (('loop', node.servo_pid()), ('bridge', node.proc.pid))}
     assert slide.controller.servo_pid() != slide.controller.proc.pid, 'no servo bus'
     assert {k: _shm_ports(pid) for k, pid in pids.items()} == {k: [] for k in pids}
-
-
-def _udp_sockets(pid: int) -> list[tuple[str, int]]:
-    """(address, port) of each IPv4 UDP socket process `pid` holds."""
-    inodes = {t[len('socket:['):-1] for t in (os.readlink(f) for f in
-              pathlib.Path(f'/proc/{pid}/fd').iterdir() if f.is_symlink())
-              if t.startswith('socket:[')}
-    out = []
-    for line in pathlib.Path(f'/proc/{pid}/net/udp').read_text().splitlines()[1:]:
-        fields = line.split()
-        if fields[9] in inodes:
-            address, port = fields[1].split(':')
-            out.append((socket.inet_ntoa(struct.pack('<I', int(address, 16))), int(port, 16)))
-    return sorted(out)
-
-
-def test_the_servo_bus_reads_no_socket_bound_beyond_loopback(bus_slide):
-    """Every socket a loop process listens on (below Linux's ephemeral ports), and every one
-    a bridge listens on for the bus (the bus domain's ports), is bound to 127.0.0.1
-    (ros/loopback_udp.xml), so a datagram from another host is not read (before: 0.0.0.0).
-    Left, and listed: the send sockets of rmw_fastrtps's own UDP transport (ephemeral ports,
-    0.0.0.0 and the interfaces' addresses), which nothing reads."""
-    from motion_ctrl.ros import servo_bus
-    slide = bus_slide
-    low = int(pathlib.Path('/proc/sys/net/ipv4/ip_local_port_range').read_text().split()[0])
-    bus = 7400 + 250 * servo_bus.servo_domain()           # (the RTPS port rule: PB + DG x domain)
-    pids = {f'{n} {k}': pid for n, node in (('plant', slide.plant), ('controller',
-                                                                      slide.controller))
-            for k, pid in (('loop', node.servo_pid()), ('bridge', node.proc.pid))}
-    assert slide.controller.servo_pid() != slide.controller.proc.pid, 'no servo bus'
-    listening = {k: [s for s in _udp_sockets(pid) if s[1] < low and (
-        'loop' in k or bus <= s[1] < bus + 250)] for k, pid in pids.items()}
-    for k, pid in pids.items():
-        print(k, 'sends from', [s for s in _udp_sockets(pid) if s[1] >= low])
-    assert all(listening.values()), listening
-    assert {k: [a for a, _ in v if a != '127.0.0.1'] for k, v in listening.items()} == {
-        k: [] for k in pids}, listening
 
 
 # A listener thread of Fast DDS's shared-memory transport, and the lock it takes on its port
