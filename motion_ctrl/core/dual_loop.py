@@ -24,7 +24,9 @@
   V1 is read as the other at-rest windows are (window_centre): from the count's lower edge,
   or from its middle (count_middle), where a reading of the target or one count below it both
   put the slide within a count of the target.
-  The sequence ends when |V1| < correction_tolerance (the load is where it should be), after
+  The sequence ends when |V1| and |V2| < correction_tolerance (the load is where it should
+  be, and the motor where its command is: a motor left short by stiction would take the slide
+  on when its integrator breaks it loose), after
   correction_max_moves, or when the load error grows beyond DIVERGED times the first one and
   DIVERGED coarse windows (the corrections drive the slide away).
 """
@@ -77,6 +79,7 @@ class SampledCorrection:
         self.settle_time = 0.0
         self.shift_counts = 0.0      # window_centre count_middle: judged from the count's middle
         self.shift = 0.0             # the same [m]
+        self.counts_per_m = 1.0      # load encoder counts a metre
         self.configure(config or defaults(CorrectionConfig))
 
     def configure(self, config: CorrectionConfig) -> None:
@@ -89,6 +92,7 @@ class SampledCorrection:
         self.settle_time = config.settling_time
         self.shift_counts = 0.5 if config.window_centre == 'count_middle' else 0.0
         self.shift = self.shift_counts / config.load_counts_per_m
+        self.counts_per_m = config.load_counts_per_m
 
     def start(self) -> None:
         """A new move began: its end will be followed by corrections."""
@@ -144,7 +148,13 @@ class SampledCorrection:
             return None
         if self._load_still + 1e-9 < self.settle_time:
             return None
-        if abs(load_error_counts - self.shift_counts) < self.tolerance_counts:
+        v2 = load_error - self.shift - motor_error          # V2 = V1 − TE
+        v1_counts = load_error_counts - self.shift_counts
+        if (abs(v1_counts) < self.tolerance_counts and abs(
+                v1_counts - motor_error * self.counts_per_m) < self.tolerance_counts):
+            # (V2 too, as Galil's JP#END,@ABS[V2]<2: a motor that stopped short of its
+            # command, held by stiction, goes on when its integrator breaks it loose and takes
+            # the slide along; the correction by V2 moves its command to where it stands)
             self.phase = self.DONE
             return None
         if self.moves >= self.max_moves:
@@ -164,4 +174,4 @@ class SampledCorrection:
         self.moves += 1
         self.phase = self.CORRECTING
         self._still_ref = self._load_ref = None
-        return load_error - self.shift - motor_error          # V2 = V1 − TE
+        return v2

@@ -366,8 +366,9 @@ AXIS_REGISTERS = (
        'encoder samples: a held-up feedback stream adds none).',
        'RMP SettlingTime', min=0.0, max=60.0),
     _r('correction_tolerance', 'double', 1 / LOAD_COUNTS_PER_M, 'm', 'Sampled dual loop: '
-       'corrections stop when the load encoder error is below this (1 count: only an exact '
-       'reading ends them).', 'Galil example: |V2| < 2 linear counts',
+       'corrections stop when the load encoder error V1 and V2 = V1 - TE (the motor\'s own '
+       'error taken off) are both below this (1 count: only an exact reading ends them).',
+       'Galil example: |V2| < 2 linear counts',
        min=0.0, min_exclusive=True),
     _r('correction_max_moves', 'integer', 200, 'count', 'Sampled dual loop: most correction '
        'moves per move (a reversal inside the gap can take one per count of backlash, twice '

@@ -217,3 +217,56 @@ def test_a_path_resumes_after_a_stall_whose_tick_had_no_sample_one_period_a_tick
     stale, fresh = _path_after_a_stall(10)      # ticks 99, then 110 (stale) and 111
     assert stale == pytest.approx(steady[STALL_PERIODS - 1], abs=1e-12)
     assert fresh == pytest.approx(steady[STALL_PERIODS], abs=1e-12)
+
+
+def _sampled_reversal_with_stalls(seed: int) -> tuple[float, float]:
+    """The headline's sampled dual loop (shipped tuning, `feedback: sampled`): +2 in, then back
+    to +1 in across the backlash, with the loop held up 1-12 periods on 2 % of its ticks while
+    the slide runs on (random, seeded). Returns the slide's error [counts] at the second move's
+    MOTION_DONE and 1.5 s after it."""
+    rnd = random.Random(seed)
+    values = axis_defaults(AXIS_REGISTERS) | SHIPPED_SLIDE_TUNING | {'feedback': 'sampled'}
+    hw = SimHardware(['x'], T)
+    loop = ServoLoop({'x': Axis('x', values, T)}, {'x': values}, T, TIMEOUT, True, hw)
+    hw.configure()
+    hw.activate()
+    plant, axis = hw.plants['x'], loop.axes['x']
+    k = 0
+
+    def tick() -> int:
+        nonlocal k
+        if rnd.random() < 0.02:
+            held = rnd.randint(1, 12)
+            for _ in range(held):
+                plant.advance(T, T)
+                hw.time += T
+            k += held
+        loop.cycle(k * T)
+        k += 1
+        return axis.status
+    for _ in range(5):
+        tick()
+    for target in (2 * INCH, INCH):
+        assert loop.move({'x': target}) == []
+        cleared = False
+        for _ in range(10000):
+            word = tick()
+            cleared = cleared or not word & S.MOTION_DONE
+            if cleared and word & S.MOTION_DONE:
+                break
+    at_done = (plant.x_l - INCH) * LOAD_COUNTS_PER_M
+    for _ in range(1500):
+        tick()
+    return at_done, (plant.x_l - INCH) * LOAD_COUNTS_PER_M
+
+
+@pytest.mark.parametrize('seed', [0, 10, 13, 20])
+def test_the_sampled_correction_ends_with_the_motor_at_its_command(seed):
+    """Galil's #CORRECT ends on |V2| = |V1 − TE| < 2: the load there and the motor at its
+    command. Ended on V1 alone, a stall on the way in left the motor stopped 2-3 counts short
+    of its command by stiction; MOTION_DONE came with the slide in place (-0.6 to -1.0
+    counts), and the motor's integrator then broke it loose and took the slide 1.4-3.9 counts
+    off (these seeds; over DDS, test_ros_headline's sampled reversal missed so in ~1 run of 5)."""
+    at_done, later = _sampled_reversal_with_stalls(seed)
+    print(f'seed {seed}: {at_done:+.2f} counts at MOTION_DONE, {later:+.2f} 1.5 s later')
+    assert abs(at_done) <= 1.0 and abs(later) <= 1.0, (at_done, later)
