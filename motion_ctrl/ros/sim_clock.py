@@ -42,7 +42,15 @@ class SimClock:
         """`sim_speed` changed: counted from now."""
         self.speed = speed
         if speed > 0.0:
-            self.wall_start = time.perf_counter() - self.sim_ns * 1e-9 / speed
+            self._count_from_now()
+
+    def _due(self) -> float:
+        """Wall seconds (since wall_start) at which the sim time now is due under the bound."""
+        return self.sim_ns * 1e-9 / self.speed
+
+    def _count_from_now(self) -> None:
+        """The bound counted from the sim time now and the wall time now."""
+        self.wall_start = time.perf_counter() - self._due()
 
     def spin_step(self, executor) -> None:
         """Servo ticks back to back for SIM_BATCH s of wall time (none while the sim time is
@@ -52,12 +60,12 @@ class SimClock:
         meanwhile."""
         speed = self.speed
         if speed > 0.0:
-            ahead = self.sim_ns * 1e-9 / speed - (time.perf_counter() - self.wall_start)
+            ahead = self._due() - (time.perf_counter() - self.wall_start)
             if ahead > 0.0:             # (at full speed: callbacks only, until it is time)
                 executor.spin_once(timeout_sec=min(ahead, SIM_BATCH))
                 return
             if ahead < -SIM_BATCH:      # behind (a busy machine): on from now, not in a burst
-                self.wall_start = time.perf_counter() - self.sim_ns * 1e-9 / speed
+                self._count_from_now()
         end = time.perf_counter() + SIM_BATCH
         # the batch ends at SIM_BATCH of wall time, or where the bound stands at its end
         last_ns = (round((end - self.wall_start) * speed * 1e9) if speed > 0.0

@@ -106,16 +106,25 @@ class MoveResult:
                                    # BACK_WINDOW after the profile's end (0: none)
 
 
-def demo_moves(registers: dict, plant: dict, plant_ticks: list[float],
-               loop_ticks: list[float], d_in: float = 0.15e-3, d_out: float = 0.25e-3,
-               moves=DEMO_MOVES, end: float = DEMO_END) -> list[MoveResult]:
-    """The demo's moves on these clocks (each a sorted list of times [s] reaching `end`)."""
-    hw = TwoClockHardware('x', plant, plant_ticks, d_in, d_out)
+def demo_loop(registers: dict, plant: dict, plant_ticks: list[float], d_in: float = 0.15e-3,
+              d_out: float = 0.25e-3, held_samples: tuple[float, float] | None = None
+              ) -> tuple[TwoClockHardware, Axis, ServoLoop]:
+    """The demo's axis `x` (`registers`) in a servo loop on the slide (`plant`) ticking at
+    `plant_ticks`, behind the transport (TwoClockHardware), the hardware activated."""
+    hw = TwoClockHardware('x', plant, plant_ticks, d_in, d_out, held_samples=held_samples)
     hw.activate()
     axis = Axis('x', registers, 1e-3)
     loop = ServoLoop({'x': axis}, {'x': axis.r}, 1e-3,
                      float(CONTROLLER_GLOBAL['feedback_timeout'].default),  # type: ignore[arg-type]
                      sim_time=True, hardware=hw)
+    return hw, axis, loop
+
+
+def demo_moves(registers: dict, plant: dict, plant_ticks: list[float],
+               loop_ticks: list[float], d_in: float = 0.15e-3, d_out: float = 0.25e-3,
+               moves=DEMO_MOVES, end: float = DEMO_END) -> list[MoveResult]:
+    """The demo's moves on these clocks (each a sorted list of times [s] reaching `end`)."""
+    hw, axis, loop = demo_loop(registers, plant, plant_ticks, d_in, d_out)
     counts_per_m = hw.plant.load_counts_per_m
     pending = list(moves)
     trace: list[tuple[float, float, bool, int, float, float]] = []

@@ -29,6 +29,15 @@ def _slide_loop(**registers):
     return loop, hw
 
 
+def _hold_up(hw, periods: int) -> int:
+    """The loop held up `periods` servo periods: the plant node's cycles run on with no command
+    coming. Returns `periods`."""
+    for _ in range(periods):
+        hw.plants['x'].advance(T, T)
+        hw.time += T
+    return periods
+
+
 def _move_with_stall(stall: float, at: float = 0.2, end: float = 1.6, **registers):
     """The slide's move to TARGET with the loop held up `stall` s at `at` s while the slide runs
     on (its amplifier's watchdog trips after command_timeout and brakes it). Returns (peak slide
@@ -39,10 +48,7 @@ def _move_with_stall(stall: float, at: float = 0.2, end: float = 1.6, **register
     log, peak, k = [], 0.0, 0
     while k < n_end:
         if k == n_at and k_stall:
-            for _ in range(k_stall):            # the plant node's cycles, no command coming
-                plant.advance(T, T)
-                hw.time += T
-            k += k_stall
+            k += _hold_up(hw, k_stall)
         tick = loop.cycle(k * T)
         log += tick.log
         if k == 1:
@@ -225,22 +231,14 @@ def _sampled_reversal_with_stalls(seed: int) -> tuple[float, float]:
     the slide runs on (random, seeded). Returns the slide's error [counts] at the second move's
     MOTION_DONE and 1.5 s after it."""
     rnd = random.Random(seed)
-    values = axis_defaults(AXIS_REGISTERS) | SHIPPED_SLIDE_TUNING | {'feedback': 'sampled'}
-    hw = SimHardware(['x'], T)
-    loop = ServoLoop({'x': Axis('x', values, T)}, {'x': values}, T, TIMEOUT, True, hw)
-    hw.configure()
-    hw.activate()
+    loop, hw = _slide_loop(**(SHIPPED_SLIDE_TUNING | {'feedback': 'sampled'}))
     plant, axis = hw.plants['x'], loop.axes['x']
     k = 0
 
     def tick() -> int:
         nonlocal k
         if rnd.random() < 0.02:
-            held = rnd.randint(1, 12)
-            for _ in range(held):
-                plant.advance(T, T)
-                hw.time += T
-            k += held
+            k += _hold_up(hw, rnd.randint(1, 12))
         loop.cycle(k * T)
         k += 1
         return axis.status

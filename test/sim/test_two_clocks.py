@@ -18,10 +18,8 @@ import statistics
 import numpy as np
 import pytest
 
-from motion_ctrl.core.axis import Axis
 from motion_ctrl.core.registers import INCH, LOAD_COUNTS_PER_M, SHIPPED_SLIDE_TUNING
-from motion_ctrl.core.servo_loop import ServoLoop
-from motion_ctrl.sim.two_clocks import DEMO_END, TwoClockHardware, demo_moves, repeat
+from motion_ctrl.sim.two_clocks import DEMO_END, TwoClockHardware, demo_loop, demo_moves, repeat
 
 CLOCKS = pathlib.Path(__file__).parents[1] / 'data' / 'demo_clocks.npz'
 GRID = [k * 1e-3 for k in range(3300)]              # the plant's ticks, exactly 1 ms apart
@@ -107,11 +105,7 @@ def _reversal_with_a_hold_up(hold: float, at: float = 0.68):
     the 60 ms after it, the slide's final error [counts])."""
     plant = [t for t in GRID[:2500] if not at < t < at + 0.005]
     loop_ticks = [t + 0.45e-3 for t in GRID[:2500] if not at < t + 0.45e-3 < at + hold]
-    hw = TwoClockHardware('x', {}, plant, 0.15e-3, 0.25e-3,
-                          held_samples=(at, at + hold + 1e-3))
-    hw.activate()
-    axis = Axis('x', SHIPPED, 1e-3)
-    loop = ServoLoop({'x': axis}, {'x': axis.r}, 1e-3, 0.02, sim_time=True, hardware=hw)
+    hw, axis, loop = demo_loop(SHIPPED, {}, plant, held_samples=(at, at + hold + 1e-3))
     moves = [(0.05, 2 * INCH), (0.6, INCH)]
     peak = gap = 0.0
     for now in loop_ticks:

@@ -185,11 +185,15 @@ class _Bus:
         while not stop and node.poll() is None:
             time.sleep(0.1)
 
+    @staticmethod
+    def _waits_for_work(executor) -> bool:
+        """rclpy's own executors build their wait set anew, in Python, over every entity of
+        their nodes each time they wake (~40 ms for 256 axes' services here): they wait for
+        work only, and close() wakes them."""
+        return isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor))
+
     def _spin(self, executor) -> None:
-        if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
-            # rclpy's own executors build their wait set anew, in Python, over every entity
-            # of their nodes each time they wake (~40 ms for 256 axes' services here): they
-            # wait for work only, and close() wakes them.
+        if self._waits_for_work(executor):
             executor.spin_until_future_complete(self.closing)
             return
         # (spin_once: EventsExecutor.spin() busy-waits in rclpy 9.1, ros_env says so)
@@ -199,8 +203,9 @@ class _Bus:
     def close(self) -> None:
         self.running = False         # the threads leave their executors before these go
         self.closing.set_result(True)
-        for e in self.executors[1:3]:
-            e.wake()
+        for e in self.executors:
+            if self._waits_for_work(e):
+                e.wake()
         for t in self.threads:
             t.join(2.0)
         for e in self.executors:
