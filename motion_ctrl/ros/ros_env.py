@@ -50,33 +50,56 @@ def spare_domain() -> int:
     return (_spare_base + 25 + next(_spare_domains)) % 101 + 1
 
 
-# The Fast DDS profile by which a process's participants announce loopback UDP locators only, no
-# shared memory (loopback_udp.xml says why): the servo bus's processes and the lockstep nodes.
+# The Fast DDS profiles of motion_ctrl's processes (each file says why): tools and lockstep nodes
+# announce loopback UDP locators only, no shared memory (loopback_udp.xml); the servo bus's
+# processes also bind every socket to 127.0.0.1 (servo_bus.xml), under a discovery range that
+# leaves the transports to the profile (SERVO_BUS_RANGE).
 PROFILES_ENV = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE')
+RANGE_ENV = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
 LOOPBACK_UDP = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'loopback_udp.xml')
+SERVO_BUS = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'servo_bus.xml')
+# rmw_fastrtps under LOCALHOST adds a UDPv4 transport of its own, bound to 0.0.0.0 and to every
+# interface's address, beside the profile's (and every datagram then goes out twice); under
+# SYSTEM_DEFAULT it adds nothing, and the profile's loopback-only transport is the only one.
+SERVO_BUS_RANGE = 'SYSTEM_DEFAULT'
 
 
 def loopback_udp(environ=os.environ) -> dict:
     """The environment entry that gives a process's participants the loopback-UDP profile; {}
-    when the user chose a Fast DDS profile file of their own (theirs is kept). A copy of this
-    one is not the user's: a tool run from the venv's install hands its nodes, which run from
+    when the user chose a Fast DDS profile file of their own (theirs is kept). A copy of one of
+    ours is not the user's: a tool run from the venv's install hands its nodes, which run from
     the source tree, the install's copy. Fast DDS reads it once per process, when its first
     participant is made: set it before the first node."""
+    return _profile(LOOPBACK_UDP, environ)
+
+
+def servo_bus(environ=os.environ) -> dict:
+    """The environment of a servo bus process's participants: servo_bus.xml and the discovery
+    range it needs (SERVO_BUS_RANGE); {} when the user chose a Fast DDS profile file of their
+    own (the bus then runs on theirs, and their range)."""
+    profile = _profile(SERVO_BUS, environ)
+    return profile | {RANGE_ENV: SERVO_BUS_RANGE} if profile else {}
+
+
+def _profile(path: str, environ) -> dict:
     if any(environ.get(k) and not _ours(environ[k]) for k in PROFILES_ENV):
         return {}
-    return {PROFILES_ENV[0]: LOOPBACK_UDP}
+    return {PROFILES_ENV[0]: path}
 
 
 def _ours(path: str) -> bool:
-    """`path` is loopback_udp.xml: this module's, or a file of the same name and bytes."""
-    if path == LOOPBACK_UDP:
-        return True
-    if os.path.basename(path) != os.path.basename(LOOPBACK_UDP):
-        return False
-    try:
-        return filecmp.cmp(path, LOOPBACK_UDP, shallow=False)
-    except OSError:
-        return False
+    """`path` is one of our profiles: this module's, or a file of the same name and bytes."""
+    for mine in (LOOPBACK_UDP, SERVO_BUS):
+        if path == mine:
+            return True
+        if os.path.basename(path) != os.path.basename(mine):
+            continue
+        try:
+            if filecmp.cmp(path, mine, shallow=False):
+                return True
+        except OSError:
+            pass
+    return False
 
 
 def executor(context=None):

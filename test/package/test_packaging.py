@@ -157,10 +157,11 @@ def test_installed_tree_is_complete():
 
 
 def test_installed_package_has_its_data():
-    """The servo bus's Fast DDS profile is installed beside the module that names it."""
+    """The Fast DDS profiles are installed beside the module that names them."""
     _installed_prefix()
-    path = metadata.distribution(PACKAGE).locate_file(f'{PACKAGE}/ros/loopback_udp.xml')
-    assert os.path.isfile(str(path)), path
+    for name in ('loopback_udp.xml', 'servo_bus.xml'):
+        path = metadata.distribution(PACKAGE).locate_file(f'{PACKAGE}/ros/{name}')
+        assert os.path.isfile(str(path)), path
 
 
 def test_installed_entry_points_match():

@@ -16,6 +16,7 @@ import pathlib
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import time
 from typing import cast
@@ -24,6 +25,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -286,6 +288,41 @@ def test_sigkill_of_the_process_started_kills_the_loop_cleanly(request, bus_slid
     assert abs(error) <= 1.0
 
 
+def test_a_second_commander_moves_nothing(bus_slide):
+    """One commander per amplifier (servo_bus.commander): 10 V on `command` from another
+    process than the plant's controller (this test's node), for 2.5 s while the axis holds
+    still, reaches no amplifier. Its output stays the controller's (a holding effort of a
+    fraction of a volt), the slide does not move, the plant's bridge names the node once a
+    second, and /diagnostics says WARN with the count, then OK once the source has gone."""
+    slide = bus_slide
+    client = slide.client
+    me = client.get_fully_qualified_name()
+    statuses: list = []
+    client.create_subscription(DiagnosticArray, md.DIAGNOSTICS, lambda m: statuses.extend(
+        st for st in m.status if st.name == 'plant: command source'), 10)
+    rogue = client.create_publisher(JointState, md.COMMAND, md.SERVO_QOS)
+    assert client.spin_until(lambda: rogue.get_subscription_count() > 0, 5.0)
+    spin_for(client, 0.5)                        # (the bridge sees it: a look a second)
+    t0, x0 = time.time(), client.truth_log[-1][1]
+    while time.time() < t0 + 2.5:
+        rogue.publish(md.joint_state(client.get_clock().now().to_msg(), ['x'], effort=[10.0]))
+        spin_for(client, 0.005)
+    client.destroy_publisher(rogue)
+    spin_for(client, 3.2)                        # (a look, and two statuses: the last count, OK)
+    applied = [abs(v) for t, v in client.decoded(md.AMPLIFIER_STATES) if t >= t0]
+    moved = max(abs(x - x0) for t, x, _ in client.truth_log if t >= t0)
+    print(f'amplifier output up to {max(applied):.3f} V, slide moved {moved / COUNT:.2f} counts')
+    assert len(applied) > 1000 and max(applied) < 1.0
+    assert moved < COUNT
+    said = slide.log('plant').count(f'bridge: /command from {me} refused: /plant takes command '
+                                    f'from /controller on the servo bus only')
+    assert 2 <= said <= 4, slide.log('plant')[-2000:]
+    warned = [st for st in statuses if st.level == DiagnosticStatus.WARN]
+    assert warned and all(f'refused from {me}' in [kv.key for kv in st.values] for st in warned)
+    assert statuses[-1].level == DiagnosticStatus.OK, [(s.level, s.message) for s in statuses]
+    assert not client.status['x'] & FAULTS, Status(client.status['x'])
+
+
 def _shm_ports(pid: int) -> list[str]:
     """The Fast DDS shared-memory ports (/dev/shm/fastdds_port*) process `pid` has open."""
     fds = pathlib.Path(f'/proc/{pid}/fd')
@@ -303,6 +340,42 @@ def test_no_process_of_the_servo_bus_opens_a_shared_memory_port(bus_slide):
             for k, pid in (('loop', node.servo_pid()), ('bridge', node.proc.pid))}
     assert slide.controller.servo_pid() != slide.controller.proc.pid, 'no servo bus'
     assert {k: _shm_ports(pid) for k, pid in pids.items()} == {k: [] for k in pids}
+
+
+def _sockets(pid: int) -> list[tuple[str, str, int]]:
+    """(protocol, bound address, port) of each IP socket process `pid` holds."""
+    inodes = {t[len('socket:['):-1] for t in (os.readlink(f) for f in
+              pathlib.Path(f'/proc/{pid}/fd').iterdir() if f.is_symlink())
+              if t.startswith('socket:[')}
+    out = []
+    for proto, family in (('udp', socket.AF_INET), ('udp6', socket.AF_INET6),
+                          ('tcp', socket.AF_INET), ('tcp6', socket.AF_INET6)):
+        for line in pathlib.Path(f'/proc/{pid}/net/{proto}').read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[9] in inodes:
+                address, port = fields[1].split(':')
+                raw = bytes.fromhex(address)     # (/proc prints each 32-bit word little-endian)
+                raw = b''.join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))
+                out.append((proto, socket.inet_ntop(family, raw), int(port, 16)))
+    return sorted(out)
+
+
+def test_no_process_of_the_servo_bus_has_a_socket_beyond_loopback(bus_slide):
+    """Every socket of the loop processes and of the bridges beside them, listening or sending,
+    is bound to 127.0.0.1 (ros/servo_bus.xml): no datagram from another host is read, none
+    leaves this host. Before, under rmw_fastrtps's LOCALHOST transport, each process listened
+    on 0.0.0.0 on the bus's ports and sent from 0.0.0.0 and from every interface's address."""
+    slide = bus_slide
+    pids = {f'{n} {k}': pid for n, node in (('plant', slide.plant), ('controller',
+                                                                      slide.controller))
+            for k, pid in (('loop', node.servo_pid()), ('bridge', node.proc.pid))}
+    assert slide.controller.servo_pid() != slide.controller.proc.pid, 'no servo bus'
+    sockets = {k: _sockets(pid) for k, pid in pids.items()}
+    for k, found in sockets.items():
+        print(k, found)
+    assert all(sockets.values()), sockets
+    assert {k: [s for s in v if s[1] != '127.0.0.1'] for k, v in sockets.items()} == {
+        k: [] for k in pids}
 
 
 # A listener thread of Fast DDS's shared-memory transport, and the lock it takes on its port

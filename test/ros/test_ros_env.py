@@ -43,3 +43,16 @@ def test_the_loopback_profile_keeps_a_users_file_but_not_a_copy_of_its_own(tmp_p
     users.write_text('<profiles/>')
     assert ros_env.loopback_udp({ros_env.PROFILES_ENV[0]: str(users)}) == {}
     assert ros_env.loopback_udp({ros_env.PROFILES_ENV[0]: str(tmp_path / 'mine.xml')}) == {}
+
+
+def test_the_servo_bus_profile_comes_with_the_range_that_leaves_it_the_transports(tmp_path):
+    """The servo bus's processes get servo_bus.xml and SYSTEM_DEFAULT (under LOCALHOST
+    rmw_fastrtps would add a transport bound to 0.0.0.0 beside it); a tool's loopback_udp.xml
+    handed down is ours and gives way; a user's own profile file is kept, range and all."""
+    ours = {ros_env.PROFILES_ENV[0]: ros_env.SERVO_BUS, 'ROS_AUTOMATIC_DISCOVERY_RANGE':
+            'SYSTEM_DEFAULT'}
+    assert ros_env.servo_bus({}) == ours
+    assert ros_env.servo_bus({ros_env.PROFILES_ENV[0]: ros_env.LOOPBACK_UDP}) == ours
+    users = tmp_path / 'mine.xml'
+    users.write_text('<profiles/>')
+    assert ros_env.servo_bus({ros_env.PROFILES_ENV[0]: str(users)}) == {}

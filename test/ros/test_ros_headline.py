@@ -3,6 +3,7 @@
 import pytest
 
 from motion_ctrl.ros import servo_bus
+from motion_ctrl.ros.servo_bus import commander
 
 from kit import COUNT, INCH, note_link_stalls, running_slide, spin_for
 from msg_defs.status import Status
@@ -14,9 +15,10 @@ def slide(rclpy_session, tmp_path, request, monkeypatch):
     feedback, *plant = request.param.split(',')
     if plant:
         # 'foreign': the controller on the servo bus, the plant off it, answering on the user's
-        # domain as a plant of another make does; the controller's bridge carries its streams
-        # (ros.servo_bus.bridge).
+        # domain as a plant of another make does, named as the controller's peer; the
+        # controller's bridge carries its streams (ros.servo_bus.bridge, commander).
         monkeypatch.setenv(servo_bus.ENV, 'auto')
+        monkeypatch.setenv(commander.PEER_ENV, '/plant')
     with running_slide(tmp_path, lambda: SlideClient(name=f'headline_{feedback}'),
                        {'x.feedback': feedback}, exit_zero=True,
                        plant_env={servo_bus.ENV: 'off'} if plant else None) as s:

@@ -5,11 +5,14 @@ import pytest
 
 pytest.importorskip('rclpy')
 
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from motion_ctrl.ros import servo_bus  # noqa: E402
-from motion_ctrl.ros.refusals import malformed_target  # noqa: E402
+from motion_ctrl.ros.refusals import RefusalLog, malformed_target  # noqa: E402
+from motion_ctrl.ros.servo_bus import commander  # noqa: E402
+from motion_ctrl.ros.servo_bus.commander import StreamIn  # noqa: E402
 from motion_ctrl.ros.servo_bus.bridge import STARTUP, Bridge  # noqa: E402
 
 
@@ -61,24 +64,84 @@ def test_nothing_is_judged_while_the_nodes_come_up():
     assert b.lines == []
 
 
-def test_a_stream_published_by_a_node_off_the_bus_is_foreign():
-    """The servo streams are copied in from the user's domain only when a node that is not a
-    bridge publishes them there (a plant of another make); a bridge's copy out is not, nor an
-    endpoint whose node is not known yet."""
-    user_side = [('controller', '/'), ('_bridge_controller_in', '/'), ('plant', '/'),
-                 ('_bridge_plant_in', '/')]
+USER_SIDE = [('controller', '/'), ('_bridge_controller_in', '/'), ('plant', '/'),
+             ('_bridge_plant_in', '/')]
 
-    def bridge(*publishers, nodes=user_side):
-        infos = [types.SimpleNamespace(node_name=n, node_namespace=ns) for n, ns in publishers]
-        return types.SimpleNamespace(public=types.SimpleNamespace(
-            get_publishers_info_by_topic=lambda topic: infos,
-            get_node_names_and_namespaces=lambda: nodes))
-    assert not Bridge._foreign_publisher(bridge(), '/encoders')
-    assert not Bridge._foreign_publisher(bridge(('plant', '/')), '/encoders')
-    assert not Bridge._foreign_publisher(bridge(('_NODE_NAME_UNKNOWN_', '/')), '/encoders')
-    assert Bridge._foreign_publisher(bridge(('plant', '/'), nodes=user_side[:2] + [('plant', '/')]),
-                                     '/encoders')
-    assert Bridge._foreign_publisher(bridge(('plant', '/'), ('drive', '/x')), '/encoders')
+
+def test_a_bridge_on_the_users_domain_is_known_by_its_in_node():
+    """A bridge's copy out is not a source of another make: its participant holds
+    `_bridge_<name>_in` beside `<name>`."""
+    assert commander.bridged(USER_SIDE) == {('controller', '/'), ('plant', '/')}
+    assert commander.bridged(USER_SIDE[:2] + [('plant', '/')]) == {('controller', '/')}
+
+
+def _endpoint(node: str, gid: int):
+    ns, _, name = node.rpartition('/')
+    return types.SimpleNamespace(node_name=name, node_namespace=ns or '/', endpoint_gid=[gid] * 16)
+
+
+def _sample(gid: int) -> dict:
+    return {'publisher_gid': {'implementation_identifier': 'rmw_fastrtps_cpp',
+                              'data': bytes([gid] * 16)}}
+
+
+def _stream(lines: list):
+    made: list = []
+    bus = types.SimpleNamespace(create_publisher=lambda *a: types.SimpleNamespace(
+        publish=made.append), destroy_publisher=lambda p: None)
+    reader = types.SimpleNamespace(create_subscription=lambda *a, **k: None)
+    stream = StreamIn('/plant', '/command', JointState, 10, reader, bus, RefusalLog(lines.append),
+                      lines.append)
+    return stream, made
+
+
+@pytest.mark.parametrize('bus_peers, peer, copied', [
+    (['/controller'], None, []),                       # the controller on the bus: its own only
+    (['/controller'], '/mine', []),                    # ... even a named one gives way to it
+    ([], None, []),                                    # no peer: nothing taken unnamed
+    ([], '/mine', [1])])                               # a controller of another make, named
+def test_one_commander_the_plant_takes_command_from_its_peer_only(bus_peers, peer, copied):
+    """`command` published on the user's domain by `/mine` (1), `/stray` (2) and the
+    controller's bridge (3, its copy of the bus's own stream): with its controller on the bus
+    the plant's bridge copies none in; without, the named one only. Each refused source is
+    logged by name with the reason, a bridge's copy is dropped without a word, and the status
+    says WARN with the counts, then OK once they stop."""
+    lines: list[str] = []
+    stream, made = _stream(lines)
+    stream.bind([_endpoint('/mine', 1), _endpoint('/stray', 2), _endpoint('/controller', 3)],
+                {('controller', '/')}, bus_peers, peer)
+    for gid in (1, 2, 3, 1, 2, 3):
+        stream._sample(b'cdr%d' % gid, _sample(gid))
+    assert made == [b'cdr%d' % g for g in copied * 2]
+    refused = [n for n in ('/mine', '/stray') if n != peer or bus_peers]
+    said = [ln for ln in lines if 'refused' in ln]
+    assert [ln.split(' from ')[1].split(' ')[0] for ln in said] == refused
+    why = ('takes command from /controller on the servo bus only' if bus_peers else
+           f'takes command from {peer} only (MOTION_CTRL_SERVO_PEER)' if peer else
+           'none is there; name a source of another make with MOTION_CTRL_SERVO_PEER')
+    assert all(why in ln and ln.startswith('bridge: /command from /') for ln in said), said
+    st = stream.status()
+    assert st.level == DiagnosticStatus.WARN and st.name == 'plant: command source'
+    assert {kv.key: kv.value for kv in st.values} == {f'refused from {n}': '2' for n in refused}
+    assert stream.status().level == DiagnosticStatus.OK
+    assert stream.status() is None
+
+
+def test_the_named_source_is_copied_in_and_said_once():
+    lines: list[str] = []
+    stream, made = _stream(lines)
+    for _ in range(2):
+        stream.bind([_endpoint('/plant_x', 7)], set(), [], '/plant_x')
+    assert [ln for ln in lines if 'copied in' in ln] == [
+        "bridge: /command from /plant_x copied in (MOTION_CTRL_SERVO_PEER; a hop more of "
+        "latency, and what joins the user's domain can hold it up)"]
+    assert stream.status() is None             # nothing refused, nothing to say
+
+
+@pytest.mark.parametrize('value, name', [('plant', '/plant'), ('/cell/plant/', '/cell/plant'),
+                                         ('', None), (' / ', None)])
+def test_the_named_peer_is_a_full_node_name(value, name):
+    assert commander.named_peer({commander.PEER_ENV: value}) == name
 
 
 @pytest.mark.parametrize('what, msg, reason', [

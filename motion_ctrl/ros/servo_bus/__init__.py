@@ -23,9 +23,12 @@ the graph, and the servo bus").
 MOTION_CTRL_SERVO_DOMAIN chooses the bus: unset or `auto` (the default), the domain 50 above
 ROS_DOMAIN_ID (wrapping in 1..101, as motion_ctrl's own domains do, below Linux's ephemeral
 ports); a number, that domain (plant and controller must agree); `off`, no bus: the node runs on
-the user's domain itself. A plant (or controller) of another make answers on the user's domain;
-the bridge copies its stream in and the node's out (servo_bus.bridge), a hop more each way. Every
-participant on the bus announces loopback UDP only (loopback_udp.xml).
+the user's domain itself (and takes its servo streams from any publisher there). A plant (or
+controller) of another make answers on the user's domain: named by MOTION_CTRL_SERVO_PEER, the
+bridge copies its stream in and the node's out (servo_bus.bridge, commander), a hop more each
+way; any other source of `command` or `encoders` there is refused (one commander). Every
+participant of the bus's processes talks loopback UDP only, its sockets bound to 127.0.0.1
+(servo_bus.xml).
 """
 from __future__ import annotations
 
@@ -44,6 +47,7 @@ from rclpy.task import Future
 
 from motion_ctrl.ros import ros_env
 from motion_ctrl.ros.processes import child_preexec, source_env
+from motion_ctrl.ros.servo_bus import commander
 from motion_ctrl.ros.servo_bus.bridge import POLL, Bridge
 
 ENV = 'MOTION_CTRL_SERVO_DOMAIN'
@@ -103,10 +107,12 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         return 2
     if domain is None:
         return None
-    # Every participant on the bus announces loopback UDP only, the bridge's and the node's
-    # (inherited): a process killed on the bus then leaves no shared-memory port for the other
-    # to wait on (loopback_udp.xml). Set before the bridge's first node makes its participant.
-    transport = ros_env.loopback_udp()
+    # Every participant of the bridge's process and of the node's (inherited) talks loopback
+    # UDP only, its sockets bound to 127.0.0.1: a process killed on the bus leaves no
+    # shared-memory port for the other to wait on, and no other host reaches the bus
+    # (servo_bus.xml). Set before the bridge's first node makes its participant.
+    transport = ros_env.servo_bus()
+    user_range = os.environ.get(ros_env.RANGE_ENV)
     os.environ.update(transport)
     stop: list[int] = []
     started: list[subprocess.Popen] = []
@@ -121,8 +127,12 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         signal.signal(sig, on_signal)
     bus = _Bus.open(domain, *node_name(name, argv))
     if not transport:
-        bus.bridge.log('the servo bus runs on your Fast DDS profile file, not on loopback_udp.xml: '
-                       'a node killed on the bus can hold up the other for a second')
+        bus.bridge.log('the servo bus runs on your Fast DDS profile file, not on servo_bus.xml: '
+                       'a node killed on the bus can hold up the other for a second, and other '
+                       'hosts may reach the bus')
+    elif user_range not in (None, '', 'LOCALHOST'):
+        bus.bridge.log(f'{ros_env.RANGE_ENV}={user_range}: this node is reached from this host '
+                       f'only (servo_bus.xml)')
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
@@ -157,16 +167,19 @@ class _Bus:
         public_ctx, servo_ctx = Context(), Context()
         rclpy.init(args=[], context=public_ctx)
         rclpy.init(args=[], context=servo_ctx, domain_id=domain)
-        return cls(name, namespace, public_ctx, servo_ctx)
+        return cls(name, namespace, public_ctx, servo_ctx, commander.named_peer())
 
-    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx):
+    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, peer=None):
         self.contexts = (public_ctx, servo_ctx)
         self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
-            f'[{name}] {m}', file=sys.stderr, flush=True))
+            f'[{name}] {m}', file=sys.stderr, flush=True), peer=peer)
         # The servo side copies every watched stream sample: the lighter executor (ros_env).
+        # The servo streams read on the user's side are told apart by their publisher
+        # (commander), which rclpy's EventsExecutor does not pass: a SingleThreaded one.
         self.executors = [ros_env.executor(servo_ctx), SingleThreadedExecutor(context=servo_ctx),
                           MultiThreadedExecutor(num_threads=4, context=public_ctx),
-                          ros_env.executor(public_ctx), ros_env.executor(servo_ctx)]
+                          SingleThreadedExecutor(context=public_ctx),
+                          ros_env.executor(servo_ctx)]
         # The bridge looks at the graph on the servo side's thread: rclpy entities are made and
         # destroyed safely only on the thread of the executor that waits on them.
         self.bridge.servo.create_timer(POLL, self.bridge.poll)

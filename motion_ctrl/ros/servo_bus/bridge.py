@@ -9,16 +9,14 @@ with the same interface, by reading the node's endpoints from the servo bus's gr
   own keeps its last sample for late joiners; the others (`/rosout` among them) are copied only
   while somebody on the user's domain subscribes (checked every `POLL` s), so a servo stream
   nobody watches costs nothing;
-* every topic the node subscribes to is copied the other way, in order. The servo streams
-  (`SERVO_TOPICS`: `encoders`, `command`, `/clock`), which plant and controller exchange on the
-  servo bus, are copied in only once a node that is not a bridge publishes them on the user's
-  domain: a plant (or controller) of another make, which does not join the bus, or a test's
-  publisher. Then everything published on that topic there is copied in, another bridge's copy
-  of the bus's own stream too: it reaches the loop a hop late and twice, and the loop drops a
-  sample older than the one it holds (core.servo_loop.ServoLoop.feedback); once only bridges
-  publish it there, the copy stops. A target message larger than the controller takes
-  (msg_defs.MAX_TARGET_BYTES), or malformed whatever the axes (NaN, lengths), is refused here,
-  before the bus, and logged as the controller logs its refusals (ros.refusals);
+* every topic the node subscribes to is copied the other way, in order. A target message
+  larger than the controller takes (msg_defs.MAX_TARGET_BYTES), or malformed whatever the axes
+  (NaN, lengths), is refused here, before the bus, and logged as the controller logs its
+  refusals (ros.refusals). The servo streams (`SERVO_TOPICS`: `encoders`, `command`, `/clock`),
+  which plant and controller exchange on the servo bus, are not: one commander per amplifier
+  (servo_bus.commander). Published on the user's domain by a node that is not a bridge, they
+  are refused while the node has its peer on the bus, and copied in only from a node of another
+  make named on purpose (commander.PEER_ENV);
 * every service (the parameter services included: `ros2 param get/set/dump/load` work
   unchanged) is answered by calling the node's service and returning its response. An action is
   three services and two topics under `<name>/_action/`, mirrored as such (its goal ids
@@ -47,13 +45,13 @@ from rclpy.subscription import Subscription
 
 import msg_defs as md
 from motion_ctrl.ros.refusals import RefusalLog, malformed_target, too_large
+from motion_ctrl.ros.servo_bus.commander import Commander
 
 SERVO_TOPICS = frozenset({'/' + md.ENCODERS, '/' + md.COMMAND, md.CLOCK})
 POLL = 0.1                   # s between looks for readers on the user's side
 GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after STARTUP s
 STARTUP, STARTUP_POLL = 5.0, 0.25   # s: the node's endpoints appear over its first seconds
 SERVICE_TIMEOUT = 10.0       # s a forwarded request waits for the node's answer
-UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'   # rmw's name for an endpoint whose node is not known yet
 STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
 
 
@@ -177,7 +175,8 @@ class Bridge:
     `public`, `servo`, `calls`, `servo_in` and `servo_out` on executors of their own (a service
     waits for `calls` on `public`'s, so not on one thread; a servo stream waits for nothing)."""
 
-    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, log=print):
+    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, log=print,
+                 peer: str | None = None):
         self.name, self.namespace = name, namespace
         self.fqn = namespace.rstrip('/') + '/' + name
         self.logger = '.'.join([*namespace.strip('/').split('/'), name]).lstrip('.')
@@ -199,9 +198,7 @@ class Bridge:
         self.group = ReentrantCallbackGroup()
         self.outward: dict[str, _Outward] = {}
         self.inward: set[str] = set()            # topics copied in
-        # the servo streams copied in, while a foreign node publishes them: (reader, its
-        # subscription, the publisher on the bus)
-        self.copied_in: dict[str, tuple] = {}
+        # the servo streams read on the user's domain, while a foreign node publishes them
         self.services: set[str] = set()          # services answered
         self.skipped: set[str] = set()           # names whose type is not installed here
         self.dropping: set[str] = set()          # topics that lost a sample (logged once)
@@ -210,6 +207,7 @@ class Bridge:
         self.started = time.monotonic()
         self.next_look = 0.0
         self.refusals = RefusalLog(log)
+        self.commander = Commander(self, peer)   # the servo streams' one source
 
     # -- the graph ----------------------------------------------------------------------------
     def poll(self) -> None:
@@ -218,6 +216,7 @@ class Bridge:
         first STARTUP s: reading the graph costs more than a copy)."""
         for out in self.outward.values():
             out.refresh()
+        self.commander.report()
         now = time.monotonic()
         if now < self.next_look:
             return
@@ -243,37 +242,21 @@ class Bridge:
             msg_type = self._type(topic, types)
             if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
-        for topic in [t for t in self.copied_in if not self._foreign_publisher(t, unknown=True)]:
-            # (no foreign publisher left: else the bus's own stream, copied out by another
-            # bridge for this copy's reader, would come back in a hop late for ever)
-            reader, sub, out = self.copied_in.pop(topic)
-            reader.destroy_subscription(sub)
-            self.servo.destroy_publisher(out)
-            self.inward.discard(topic)
-            self.log(f'bridge: {topic} has no publisher left on the user\'s domain but the '
-                     'bridges: no longer copied in')
-        for topic, types in self.servo.get_subscriber_names_and_types_by_node(self.name, ns):
-            if topic in self.inward or (topic in SERVO_TOPICS
-                                        and not self._foreign_publisher(topic)):
+        subscribed = self.servo.get_subscriber_names_and_types_by_node(self.name, ns)
+        self.commander.look([(t, ts) for t, ts in subscribed if t in SERVO_TOPICS])
+        for topic, types in subscribed:
+            if topic in self.inward or topic in SERVO_TOPICS:
                 continue
-            mine = [i for i in self.servo.get_subscriptions_info_by_topic(topic)
-                    if i.node_name == self.name and i.node_namespace == ns]
-            msg_type = self._type(topic, types)
-            if msg_type is None or not mine:
+            kind = self.inward_kind(topic, types)
+            if kind is None:
                 continue
-            qos = inward_qos(mine[0])
+            msg_type, qos = kind
             out = self.servo.create_publisher(msg_type, topic, qos)
             # (a group per topic: its samples copied one at a time, in the order they came)
-            reader = self.servo_in if topic in SERVO_TOPICS else self.public
-            sub = reader.create_subscription(msg_type, topic, self._copy_in(topic, out), qos,
-                                             raw=True,
-                                             callback_group=MutuallyExclusiveCallbackGroup())
+            self.public.create_subscription(msg_type, topic, self._copy_in(topic, out), qos,
+                                            raw=True,
+                                            callback_group=MutuallyExclusiveCallbackGroup())
             self.inward.add(topic)
-            if topic in SERVO_TOPICS:
-                self.copied_in[topic] = (reader, sub, out)
-                self.log(f'bridge: {topic} is published on the user\'s domain by a node that '
-                         f'is not on the servo bus: copied in (a hop more of latency, and '
-                         f'what joins the user\'s domain can hold it up)')
         for service, types in self.servo.get_service_names_and_types_by_node(self.name, ns):
             if service in self.services:
                 continue
@@ -291,9 +274,7 @@ class Bridge:
         (refusals.malformed_target: NaN, lengths), is refused here, before the servo bus, as
         the controller would refuse it (once a second, with a count): a flood of them copied on
         would take the loop's thread a message at a time (a NaN target at 1 kHz: 792-922 Hz
-        before, 405-662 Hz during, doc/performance.md). A servo stream's copy is
-        stopped by `look` on another thread than the one that copies: a sample taken before
-        is dropped."""
+        before, 405-662 Hz during, doc/performance.md)."""
         what = topic.rsplit('/', 1)[-1]
         gate = what in (md.TARGET_POSITION, md.TARGET_VELOCITY)
 
@@ -312,18 +293,13 @@ class Bridge:
                 pass
         return copy
 
-    def _foreign_publisher(self, topic: str, *, unknown: bool = False) -> bool:
-        """Whether a node on the user's domain that is not a bridge publishes `topic` there. A
-        bridge's participant there holds `_bridge_<name>_in` beside `<name>`, and a participant's
-        node names arrive together, so this does not depend on what the bus's discovery has
-        seen yet, and a restarted peer's bridge is not taken for a plant of another make.
-        `unknown`: a publisher whose node's names are not in yet counts as foreign."""
-        nodes = self.public.get_node_names_and_namespaces()
-        bridges = {(n[len('_bridge_'):-len('_in')], ns) for n, ns in nodes
-                   if n.startswith('_bridge_') and n.endswith('_in')}
-        return any((i.node_name, i.node_namespace) not in bridges
-                   and (unknown or i.node_name != UNKNOWN_NODE)  # (names not in yet: next look)
-                   for i in self.public.get_publishers_info_by_topic(topic))
+    def inward_kind(self, topic: str, types: list[str]) -> tuple | None:
+        """(type, QoS) of a copy of `topic` in, from the node's own subscription on the bus;
+        None when its type is not installed here or the subscription is not seen yet."""
+        mine = [i for i in self.servo.get_subscriptions_info_by_topic(topic)
+                if i.node_name == self.name and i.node_namespace == self.namespace]
+        msg_type = self._type(topic, types)
+        return None if msg_type is None or not mine else (msg_type, inward_qos(mine[0]))
 
     def _strangers(self, nodes: list[tuple[str, str]]) -> None:
         """Say so (once per node) when the servo bus holds a node that is neither a bridge nor
