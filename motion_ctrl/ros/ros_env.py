@@ -8,6 +8,7 @@ parallel runs on one machine don't see each other, and the loopback-UDP profile 
 own processes (`loopback_udp`), so they find the nodes they start within half a second of their
 coming up. Call before rclpy.init().
 """
+import contextlib
 import faulthandler
 import fcntl
 import filecmp
@@ -82,12 +83,12 @@ def servo_bus(environ=os.environ) -> dict:
 
 
 def _profile(path: str, environ) -> dict:
-    if any(environ.get(k) and not _ours(environ[k]) for k in PROFILES_ENV):
+    if any(environ.get(k) and not profile_is_ours(environ[k]) for k in PROFILES_ENV):
         return {}
     return {PROFILES_ENV[0]: path}
 
 
-def _ours(path: str) -> bool:
+def profile_is_ours(path: str) -> bool:
     """`path` is one of our profiles: this module's, or a file of the same name and bytes."""
     for mine in (LOOPBACK_UDP, SERVO_BUS):
         if path == mine:
@@ -100,6 +101,27 @@ def _ours(path: str) -> bool:
         except OSError:
             pass
     return False
+
+
+@contextlib.contextmanager
+def environ(overrides: dict):
+    """This process's environment with `overrides` (a value of None: unset) for the block: for
+    what rcl reads at rclpy.init() (discovery range, static peers) and Fast DDS when a
+    context's first node makes its participant (ROS_DISCOVERY_SERVER)."""
+    saved = {k: os.environ.get(k) for k in overrides}
+    try:
+        for k, v in overrides.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def executor(context=None):

@@ -11,7 +11,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 
 from motion_ctrl.ros import servo_bus  # noqa: E402
 from motion_ctrl.ros.refusals import RefusalLog, malformed_target  # noqa: E402
-from motion_ctrl.ros.servo_bus import commander  # noqa: E402
+from motion_ctrl.ros.servo_bus import commander, relay  # noqa: E402
 from motion_ctrl.ros.servo_bus.commander import StreamIn  # noqa: E402
 from motion_ctrl.ros.servo_bus.bridge import STARTUP, Bridge  # noqa: E402
 
@@ -159,3 +159,33 @@ def test_the_bridge_refuses_a_target_no_axis_could_take(what, msg, reason):
     assert malformed_target(what, serialize_message(JointState(**msg))) == reason
     assert malformed_target(what, b'\x00\x01\x00\x00garbage').startswith(
         f'{what} refused: not a JointState')
+
+
+@pytest.mark.parametrize('env, reaches', [
+    ({}, False), ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}, False),
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'subnet'}, True),
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}, True),
+    ({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_STATIC_PEERS': '10.0.0.2'}, True),
+    ({'ROS_DISCOVERY_SERVER': '10.0.0.1:11811'}, True)])
+def test_a_domain_that_reaches_other_hosts_is_relayed(env, reaches):
+    """The bridge's user side goes through a relay (servo_bus.relay) when the environment
+    discovers beyond this host; its local domain is neither the user's nor the bus's."""
+    assert relay.reaches_other_hosts(env) is reaches
+    for user in range(0, 102):
+        env = {'ROS_DOMAIN_ID': str(user)}
+        assert relay.local_domain(env) not in (user, servo_bus.servo_domain(env))
+        assert 1 <= relay.local_domain(env) <= 101
+
+
+def test_a_relay_copies_no_servo_stream_in():
+    """A relay's node is another bridge: whatever publishes `command` on the user's domain
+    (another host), a named peer too, is refused by name, with why."""
+    lines: list[str] = []
+    stream, made = _stream(lines)
+    stream.bind([_endpoint('/mine', 1), _endpoint('/laptop', 2)], set(), [], '/mine', relay=True)
+    for gid in (1, 2):
+        stream._sample(b'cdr', _sample(gid))
+    assert made == []
+    assert lines == [f'bridge: /command from {n} refused: /plant takes command from its peer on '
+                     f'its own host only (this is a relay to other hosts)' for n in ('/mine',
+                                                                                    '/laptop')]

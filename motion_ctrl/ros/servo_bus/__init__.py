@@ -47,7 +47,7 @@ from rclpy.task import Future
 
 from motion_ctrl.ros import ros_env
 from motion_ctrl.ros.processes import child_preexec, source_env
-from motion_ctrl.ros.servo_bus import commander
+from motion_ctrl.ros.servo_bus import commander, relay
 from motion_ctrl.ros.servo_bus.bridge import POLL, Bridge
 
 ENV = 'MOTION_CTRL_SERVO_DOMAIN'
@@ -111,9 +111,15 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     # UDP only, its sockets bound to 127.0.0.1: a process killed on the bus leaves no
     # shared-memory port for the other to wait on, and no other host reaches the bus
     # (servo_bus.xml). Set before the bridge's first node makes its participant.
+    # Your domain opened to other hosts: the bridge's side of it goes onto the local domain,
+    # and a relay of your environment mirrors it onto yours (servo_bus.relay).
+    user_env = dict(os.environ)
     transport = ros_env.servo_bus()
-    user_range = os.environ.get(ros_env.RANGE_ENV)
+    local = relay.local_domain() if transport and relay.reaches_other_hosts() else None
     os.environ.update(transport)
+    if local is not None:
+        for k in relay.PEER_VARS:
+            os.environ.pop(k, None)
     stop: list[int] = []
     started: list[subprocess.Popen] = []
     # The node is told SIGTERM: it stops as on SIGINT once it runs, and while it still imports
@@ -121,25 +127,26 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
 
     def on_signal(sig, _frame):
         stop.append(sig)
-        for node in started:         # at once: a Ctrl-C mid-move commands 0 V now
-            node.send_signal(signal.SIGTERM)
+        for child in started:        # at once: a Ctrl-C mid-move commands 0 V now
+            child.send_signal(signal.SIGTERM)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
-    bus = _Bus.open(domain, *node_name(name, argv))
+    names = node_name(name, argv)
+    bus = _Bus.open(domain, *names, public_domain=local)
     if not transport:
         bus.bridge.log('the servo bus runs on your Fast DDS profile file, not on servo_bus.xml: '
                        'a node killed on the bus can hold up the other for a second, and other '
                        'hosts may reach the bus')
-    elif user_range not in (None, '', 'LOCALHOST'):
-        bus.bridge.log(f'{ros_env.RANGE_ENV}={user_range}: this node is reached from this host '
-                       f'only (servo_bus.xml)')
+    if local is not None:
+        started.append(relay.start(*names, local, user_env))
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
                             env=servo_process_env(domain), preexec_fn=child_preexec)
     started.append(node)
     if stop:
-        node.send_signal(signal.SIGTERM)
+        for child in started:
+            child.send_signal(signal.SIGTERM)
     try:
         bus.run(node, stop)
     finally:
@@ -151,6 +158,14 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
             except subprocess.TimeoutExpired:
                 node.kill()
                 node.wait()
+        for child in started[:-1]:                # the relay, if any (it ends on SIGTERM)
+            if child.poll() is None:
+                child.send_signal(signal.SIGTERM)
+            try:
+                child.wait(STOP_WAIT_BRIDGE)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.wait()
         rc = node.returncode if node.returncode >= 0 else 128 - node.returncode
         # (its node gone, the bridge leaves with its code even if ROS's teardown hangs:
         # doc/design_notes.md, "The servo bus as the default")
@@ -163,16 +178,23 @@ class _Bus:
     """The bridge and its executors, spinning on threads of their own."""
 
     @classmethod
-    def open(cls, domain: int, name: str, namespace: str) -> _Bus:
+    def open(cls, domain: int, name: str, namespace: str, *, public_domain: int | None = None,
+             servo_env: dict | None = None, relay: bool = False) -> _Bus:
+        """The bridge of node `name` from `domain` onto `public_domain` (default: ROS_DOMAIN_ID);
+        `servo_env`: the environment the `domain` side is made in; `relay`: a relay's
+        (servo_bus.relay)."""
         public_ctx, servo_ctx = Context(), Context()
-        rclpy.init(args=[], context=public_ctx)
-        rclpy.init(args=[], context=servo_ctx, domain_id=domain)
-        return cls(name, namespace, public_ctx, servo_ctx, commander.named_peer())
+        with ros_env.environ(servo_env or {}):
+            rclpy.init(args=[], context=servo_ctx, domain_id=domain)
+        rclpy.init(args=[], context=public_ctx, domain_id=public_domain)
+        bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
+            f'[{name}] {m}', file=sys.stderr, flush=True), servo_env=servo_env,
+            peer=None if relay else commander.named_peer(), relay=relay)
+        return cls(bridge, public_ctx, servo_ctx)
 
-    def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, peer=None):
+    def __init__(self, bridge: Bridge, public_ctx, servo_ctx):
         self.contexts = (public_ctx, servo_ctx)
-        self.bridge = Bridge(name, namespace, public_ctx, servo_ctx, log=lambda m: print(
-            f'[{name}] {m}', file=sys.stderr, flush=True), peer=peer)
+        self.bridge = bridge
         # The servo side copies every watched stream sample: the lighter executor (ros_env).
         # The servo streams read on the user's side are told apart by their publisher
         # (commander), which rclpy's EventsExecutor does not pass: a SingleThreaded one.

@@ -44,10 +44,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 
 import msg_defs as md
+from motion_ctrl.ros import ros_env
 from motion_ctrl.ros.refusals import RefusalLog, malformed_target, too_large
 from motion_ctrl.ros.servo_bus.commander import Commander
 
 SERVO_TOPICS = frozenset({'/' + md.ENCODERS, '/' + md.COMMAND, md.CLOCK})
+READS = {'/' + md.ENCODERS: '/' + md.COMMAND, '/' + md.COMMAND: '/' + md.ENCODERS}
 POLL = 0.1                   # s between looks for readers on the user's side
 GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after STARTUP s
 STARTUP, STARTUP_POLL = 5.0, 0.25   # s: the node's endpoints appear over its first seconds
@@ -176,7 +178,7 @@ class Bridge:
     waits for `calls` on `public`'s, so not on one thread; a servo stream waits for nothing)."""
 
     def __init__(self, name: str, namespace: str, public_ctx, servo_ctx, log=print,
-                 peer: str | None = None):
+                 peer: str | None = None, servo_env: dict | None = None, relay: bool = False):
         self.name, self.namespace = name, namespace
         self.fqn = namespace.rstrip('/') + '/' + name
         self.logger = '.'.join([*namespace.strip('/').split('/'), name]).lstrip('.')
@@ -186,8 +188,11 @@ class Bridge:
                         use_global_arguments=False, start_parameter_services=False,
                         enable_rosout=False, parameter_overrides=[
                             Parameter('start_type_description_service', value=False)])
+        # (the servo side's participant first, made with this node in `servo_env`: made after
+        # one that is a discovery server's client, it was one too)
+        with ros_env.environ(servo_env or {}):
+            self.servo = node(f'_bridge_{name}', servo_ctx)
         self.public = node(name, public_ctx)
-        self.servo = node(f'_bridge_{name}', servo_ctx)
         # The service clients on a node (and executor) of their own: a response must not wait
         # behind a queue of stream samples to copy.
         self.calls = node(f'_bridge_{name}_calls', servo_ctx)
@@ -207,7 +212,8 @@ class Bridge:
         self.started = time.monotonic()
         self.next_look = 0.0
         self.refusals = RefusalLog(log)
-        self.commander = Commander(self, peer)   # the servo streams' one source
+        self.relay = relay                       # a relay's (servo_bus.relay)
+        self.commander = Commander(self, peer, relay)   # the servo streams' one source
 
     # -- the graph ----------------------------------------------------------------------------
     def poll(self) -> None:
@@ -234,7 +240,8 @@ class Bridge:
         self._strangers(nodes)
         if (self.name, ns) not in nodes:
             return
-        for topic, types in self.servo.get_publisher_names_and_types_by_node(self.name, ns):
+        published = self.servo.get_publisher_names_and_types_by_node(self.name, ns)
+        for topic, types in published:
             if topic in self.outward:
                 continue
             mine = [i for i in self.servo.get_publishers_info_by_topic(topic)
@@ -243,7 +250,10 @@ class Bridge:
             if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
         subscribed = self.servo.get_subscriber_names_and_types_by_node(self.name, ns)
-        self.commander.look([(t, ts) for t, ts in subscribed if t in SERVO_TOPICS])
+        # (a relay's node is another bridge, which reads no servo stream on its side: those
+        # the loop reads are the ones opposite those it publishes)
+        self.commander.look([(READS[t], ts) for t, ts in published if t in READS] if self.relay
+                            else [(t, ts) for t, ts in subscribed if t in SERVO_TOPICS])
         for topic, types in subscribed:
             if topic in self.inward or topic in SERVO_TOPICS:
                 continue

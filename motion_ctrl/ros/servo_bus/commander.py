@@ -26,6 +26,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile
 
 import msg_defs as md
 
@@ -50,8 +51,8 @@ class Commander:
     """The servo streams into the node of `bridge` (servo_bus.bridge.Bridge), bound to its one
     source: `look` from the bridge's look at the graph, `report` from its poll."""
 
-    def __init__(self, bridge, peer: str | None):
-        self.bridge, self.peer = bridge, peer
+    def __init__(self, bridge, peer: str | None, relay: bool = False):
+        self.bridge, self.peer, self.relay = bridge, peer, relay
         self.streams: dict[str, StreamIn] = {}    # read while a foreign node publishes them
         self.finished: list[StreamIn] = []        # ... no longer read, an OK status still due
         self.diagnostics: Publisher | None = None  # the publisher of the streams' statuses
@@ -70,7 +71,7 @@ class Commander:
             if stream is None:
                 # (a publisher whose node's names are not in yet: judged at the next look)
                 kind = None if all(i.node_name == UNKNOWN_NODE for i in foreign) else \
-                    b.inward_kind(topic, types)
+                    self._kind(topic, types)
                 if kind is None:
                     continue
                 msg_type, qos = kind
@@ -84,7 +85,15 @@ class Commander:
                                if not i.node_name.startswith(BRIDGE_PREFIX)
                                and i.node_name != UNKNOWN_NODE)
             stream.bind([i for i in foreign if i.node_name != UNKNOWN_NODE], bridges,
-                        bus_peers, self.peer)
+                        bus_peers, self.peer, self.relay)
+
+    def _kind(self, topic: str, types: list[str]) -> tuple | None:
+        """(type, QoS) of the stream's reader: the node's own; a relay's node reads none
+        (a relay only refuses)."""
+        if not self.relay:
+            return self.bridge.inward_kind(topic, types)
+        msg_type = self.bridge._type(topic, types)
+        return None if msg_type is None else (msg_type, QoSProfile(depth=10))
 
     def report(self) -> None:
         """/diagnostics of the streams' sources, once a second when there is something to say
@@ -134,20 +143,24 @@ class StreamIn:
         self.sub = reader.create_subscription(msg_type, topic, self._sample, qos, raw=True,
                                               callback_group=MutuallyExclusiveCallbackGroup())
 
-    def bind(self, public: list, bridges: set, bus_peers: list[str], peer: str | None) -> None:
+    def bind(self, public: list, bridges: set, bus_peers: list[str], peer: str | None,
+             relay: bool = False) -> None:
         """From one look at the graph: `public`, the endpoints publishing the stream on the
         user's domain; `bridges`, the (name, namespace) of the bridges there; `bus_peers`, the
-        nodes that publish it on the servo bus and are not bridges; `peer`, PEER_ENV's node."""
+        nodes that publish it on the servo bus and are not bridges; `peer`, PEER_ENV's node;
+        `relay`: a relay's, which copies no servo stream in."""
         foreign = [i for i in public if (i.node_name, i.node_namespace) not in bridges]
-        if bus_peers:
-            accepted = []
+        accepted: list = []
+        if relay:
+            self.reason = (f'{self.node} takes {self.what} from its peer on its own host only '
+                           f'(this is a relay to other hosts)')
+        elif bus_peers:
             self.reason = (f'{self.node} takes {self.what} from {", ".join(bus_peers)} on the '
                            f'servo bus only')
         elif peer is not None:
             accepted = [i for i in foreign if fqn(i) == peer]
             self.reason = f'{self.node} takes {self.what} from {peer} only ({PEER_ENV})'
         else:
-            accepted = []
             self.reason = (f'{self.node} takes {self.what} from its peer on the servo bus only '
                            f'(none is there; name a source of another make with {PEER_ENV})')
         gids = frozenset(bytes(i.endpoint_gid) for i in accepted)

@@ -1,0 +1,147 @@
+"""Tuned from another machine (issue 27): a "controller PC" and a "laptop" as two network
+namespaces joined by a veth pair, made and removed here (two_hosts_kit.Hosts; nothing is sent
+on this machine's own interfaces), ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET inside both.
+
+The controller PC runs plant and controller as a user would, and moves the axis back and forth
+with the shipped 20 ms watchdog; the laptop's tools reach the nodes through the relays
+(servo_bus.relay): parameters, echo, a recording of the servo streams, the link down for 5 s,
+and a `command` and an `encoders` of its own, which move nothing.
+"""
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import time
+
+import pytest
+
+pytest.importorskip('rclpy')
+
+from two_hosts_kit import CONTROLLER_IP, Hosts  # noqa: E402
+
+KIT = pathlib.Path(__file__).with_name('two_hosts_kit.py')
+ROOT = KIT.parents[2]
+
+pytestmark = [
+    pytest.mark.skipif(os.geteuid() != 0 or shutil.which('ip') is None,
+                       reason='makes network namespaces: needs root and iproute2'),
+    pytest.mark.timeout(240)]
+
+
+# The two recipes a user follows (README, "Tuning from another machine"): discovery opened to
+# the subnet (multicast), or a discovery server on the controller PC.
+RECIPES = {
+    'subnet': {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'},
+    'discovery_server': {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                         'ROS_DISCOVERY_SERVER': f'{CONTROLLER_IP}:11811'}}
+LAPTOP = {'discovery_server': {'ROS_SUPER_CLIENT': 'TRUE'}}   # (as `ros2` CLI tools need)
+
+
+def _env(tmp_path, domain: int, recipe: str) -> dict:
+    env = dict(os.environ)
+    for k in ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE',
+              'MOTION_CTRL_SERVO_DOMAIN'):
+        env.pop(k, None)
+    return env | RECIPES[recipe] | {
+        'ROS_DOMAIN_ID': str(domain), 'TWO_HOSTS_DIR': str(tmp_path),
+        'PYTHONPATH': os.pathsep.join([str(ROOT), str(ROOT / 'test')])}
+
+
+def _discovery_server(hosts: Hosts, env: dict, log: pathlib.Path) -> subprocess.Popen:
+    """Fast DDS's discovery server on the controller PC (`fastdds discovery`; the pip
+    wheel's binary finds its libraries through LD_LIBRARY_PATH only)."""
+    venv = pathlib.Path(sys.executable).parents[1]
+    libs = [venv / 'lib', *venv.glob('lib/python3*/site-packages/ros_fastdds.libs')]
+    return hosts.popen(hosts.controller, [
+        str(venv / 'bin' / 'fastdds'), 'discovery', '-l', CONTROLLER_IP, '-p', '11811'],
+        env | {'LD_LIBRARY_PATH': os.pathsep.join(map(str, libs))},
+        stdout=log.open('w'), stderr=subprocess.STDOUT)
+
+
+def _wait_file(path: pathlib.Path, proc: subprocess.Popen, timeout: float) -> None:
+    end = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, f'{path.name}: the program ended ({proc.returncode})'
+        assert time.monotonic() < end, f'no {path.name} within {timeout} s'
+        time.sleep(0.1)
+
+
+@pytest.mark.parametrize('recipe', list(RECIPES))
+def test_tuned_from_a_laptop_the_loop_unaffected(tmp_path, own_domain, recipe):
+    hosts = Hosts(str(os.getpid() % 10000))
+    env = _env(tmp_path, int(os.environ['ROS_DOMAIN_ID']), recipe)
+    ctl_out, lap_out = tmp_path / 'controller_pc.json', tmp_path / 'laptop.json'
+    try:
+        if recipe == 'discovery_server':
+            _discovery_server(hosts, env, tmp_path / 'discovery_server.log')
+        pc = hosts.popen(hosts.controller, [sys.executable, str(KIT), 'controller_pc',
+                                            str(ctl_out), '150', str(tmp_path)], env)
+        _wait_file(pathlib.Path(f'{ctl_out}.ready'), pc, 60.0)
+        lap = hosts.popen(hosts.laptop, [
+            sys.executable, str(KIT), 'laptop', str(lap_out), 'discover', 'params_round',
+            'echo:3', 'record:10', 'outage:30', 'echo:2', 'commander:3'],
+            env | LAPTOP.get(recipe, {}))
+        # the link down for 5 s while the laptop's tools are attached (and echo)
+        _wait_file(pathlib.Path(f'{lap_out}.record'), lap, 90.0)
+        time.sleep(1.0)
+        hosts.link(False)
+        time.sleep(5.0)
+        hosts.link(True)
+        assert lap.wait(90) == 0, (tmp_path / 'laptop.json').read_text()
+        pathlib.Path(f'{ctl_out}.stop').touch()
+        assert pc.wait(30) == 0
+    finally:
+        hosts.close()
+    pc_found, found = json.loads(ctl_out.read_text()), json.loads(lap_out.read_text())
+    print(json.dumps(found | {'moves': pc_found['moves']}, indent=1)[:6000])
+    logs = {n: (tmp_path / f'{n}.log').read_text() for n in ('controller', 'plant')}
+    # the loop: every move within a count, no fault, while the laptop did all that (and after
+    # its `command` and `encoders`, refused)
+    assert len(pc_found['moves']) >= 15 and pc_found['faults'] == []
+    assert all(m is not None and abs(m) <= 1.0 for m in pc_found['moves']), pc_found['moves']
+    # the laptop: parameters, echo, the recording
+    assert found['discover']['services']
+    p = found['params_round']
+    assert p['set'] and p['kp_after_set'] == pytest.approx(p['kp'] * 1.01)
+    assert p['dumped'] > 50 and p['loaded'] > 40 and p['load_refused'] == [], p
+    assert found['echo']['joint_states'] > 2000 and found['echo']['status_words'] >= 25
+    assert found['record']['rc'] == 0, found['record']['output']
+    overruns = [int(float(d['overruns_total'])) for d in found['echo']['loop'][-1:]
+                + found['record']['loop']]
+    _assert_complete(pathlib.Path(found['record']['bag']), overruns[-1] - overruns[0])
+    # the link down and up: the tools' streams come back
+    assert found['outage']['seen_down'] and 5.0 <= found['outage']['gap'] < 8.0, found['outage']
+    assert found['echo_2']['joint_states'] > 1000
+    # a command and an encoders reading of its own move nothing, and are named
+    sources = {(n, level) for n, level, keys in found['commander']['sources']
+               if any('laptop_tools' in k for k in keys)}
+    assert {('plant: command source', 1), ('controller: encoders source', 1)} <= sources
+    for node, what in (('plant', 'command'), ('controller', 'encoders')):
+        assert f'/{what} from /laptop_tools refused' in logs[node], logs[node][-2000:]
+
+
+def _assert_complete(bag: pathlib.Path, skipped: int) -> None:
+    """The recording's servo streams without a hole: one message a servo period from first to
+    last, but for the ticks the controller's loop itself skipped (`skipped`, its own count
+    over the recording: /diagnostics overruns_total; the plant's `encoders`, whose ticks
+    nothing counts, within 2 %)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from motion_ctrl.bags.reader import parse_joint_state
+    stamps: dict[str, list[float]] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_KILTED)) as reader:
+        for conn, _t, raw in reader.messages():
+            if conn.msgtype == 'sensor_msgs/msg/JointState':
+                stamps.setdefault(conn.topic, []).append(parse_joint_state(raw)[0] * 1e-9)
+    for topic in ('/joint_states', '/command', '/encoders'):
+        t = sorted(stamps.get(topic, []))
+        missing = sum(round(b - a, 3) * 1000 - 1 for a, b in zip(t, t[1:]))
+        print(f'{topic}: {len(t)} messages over {t[-1] - t[0]:.3f} s, {missing:.0f} periods '
+              f'without one (the loop skipped {skipped})')
+        assert t[-1] - t[0] > 2.0, topic
+        assert missing <= (skipped if topic != '/encoders' else 0.02 * len(t)), topic
