@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import os
 import pathlib
+import socket
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -137,3 +138,21 @@ def running_slide(log_dir, make_client: Callable[[], Any], controller_params: di
             codes['plant'] = slide.plant.stop()
     if exit_zero:
         assert set(codes.values()) == {0}, f'exit codes {codes}; logs in {log_dir}'
+
+
+def ip_sockets(pid: int) -> list[tuple[str, str, int]]:
+    """(protocol, bound address, port) of each IP socket process `pid` holds."""
+    inodes = {t[len('socket:['):-1] for t in (os.readlink(f) for f in
+              pathlib.Path(f'/proc/{pid}/fd').iterdir() if f.is_symlink())
+              if t.startswith('socket:[')}
+    out = []
+    for proto, family in (('udp', socket.AF_INET), ('udp6', socket.AF_INET6),
+                          ('tcp', socket.AF_INET), ('tcp6', socket.AF_INET6)):
+        for line in pathlib.Path(f'/proc/{pid}/net/{proto}').read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[9] in inodes:
+                address, port = fields[1].split(':')
+                raw = bytes.fromhex(address)     # (/proc prints each 32-bit word little-endian)
+                raw = b''.join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))
+                out.append((proto, socket.inet_ntop(family, raw), int(port, 16)))
+    return sorted(out)

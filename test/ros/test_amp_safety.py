@@ -16,7 +16,6 @@ import pathlib
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import time
 from typing import cast
@@ -33,7 +32,7 @@ from std_msgs.msg import Bool  # noqa: E402
 
 import msg_defs as md  # noqa: E402
 from msg_defs.status import Status  # noqa: E402
-from kit import COUNT, INCH, running_slide, spin_for, stall_line  # noqa: E402
+from kit import COUNT, INCH, ip_sockets, running_slide, spin_for, stall_line  # noqa: E402
 from motion_ctrl.ros.client import FAULTS, SlideClient  # noqa: E402
 from motion_ctrl.ros.processes import NodeProcess, params_dir  # noqa: E402
 from motion_ctrl.core.registers import PLANT_AXIS  # noqa: E402
@@ -342,24 +341,6 @@ def test_no_process_of_the_servo_bus_opens_a_shared_memory_port(bus_slide):
     assert {k: _shm_ports(pid) for k, pid in pids.items()} == {k: [] for k in pids}
 
 
-def _sockets(pid: int) -> list[tuple[str, str, int]]:
-    """(protocol, bound address, port) of each IP socket process `pid` holds."""
-    inodes = {t[len('socket:['):-1] for t in (os.readlink(f) for f in
-              pathlib.Path(f'/proc/{pid}/fd').iterdir() if f.is_symlink())
-              if t.startswith('socket:[')}
-    out = []
-    for proto, family in (('udp', socket.AF_INET), ('udp6', socket.AF_INET6),
-                          ('tcp', socket.AF_INET), ('tcp6', socket.AF_INET6)):
-        for line in pathlib.Path(f'/proc/{pid}/net/{proto}').read_text().splitlines()[1:]:
-            fields = line.split()
-            if fields[9] in inodes:
-                address, port = fields[1].split(':')
-                raw = bytes.fromhex(address)     # (/proc prints each 32-bit word little-endian)
-                raw = b''.join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))
-                out.append((proto, socket.inet_ntop(family, raw), int(port, 16)))
-    return sorted(out)
-
-
 def test_no_process_of_the_servo_bus_has_a_socket_beyond_loopback(bus_slide):
     """Every socket of the loop processes and of the bridges beside them, listening or sending,
     is bound to 127.0.0.1 (ros/servo_bus.xml): no datagram from another host is read, none
@@ -370,7 +351,7 @@ def test_no_process_of_the_servo_bus_has_a_socket_beyond_loopback(bus_slide):
                                                                       slide.controller))
             for k, pid in (('loop', node.servo_pid()), ('bridge', node.proc.pid))}
     assert slide.controller.servo_pid() != slide.controller.proc.pid, 'no servo bus'
-    sockets = {k: _sockets(pid) for k, pid in pids.items()}
+    sockets = {k: ip_sockets(pid) for k, pid in pids.items()}
     for k, found in sockets.items():
         print(k, found)
     assert all(sockets.values()), sockets

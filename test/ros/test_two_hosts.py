@@ -103,6 +103,13 @@ def test_tuned_from_a_laptop_the_loop_unaffected(tmp_path, own_domain, recipe):
     # its `command` and `encoders`, refused)
     assert len(pc_found['moves']) >= 15 and pc_found['faults'] == []
     assert all(m is not None and abs(m) <= 1.0 for m in pc_found['moves']), pc_found['moves']
+    # the servo bus's processes on loopback only; the relays are what the laptop reaches
+    beyond = pc_found['beyond_loopback']
+    assert sorted(beyond) == sorted(f'{n} {k}' for n in ('plant', 'controller')
+                                    for k in ('bridge', 'loop', 'relay')), beyond
+    assert {k: v for k, v in beyond.items() if 'relay' not in k} == {
+        f'{n} {k}': [] for n in ('plant', 'controller') for k in ('bridge', 'loop')}
+    assert all(beyond[f'{n} relay'] for n in ('plant', 'controller'))
     # the laptop: parameters, echo, the recording
     assert found['discover']['services']
     p = found['params_round']

@@ -88,7 +88,7 @@ class Hosts:
 
 # -- the controller PC ---------------------------------------------------------------------------
 def controller_pc(out: str, seconds: str, log_dir: str) -> None:
-    from kit import COUNT, INCH
+    from kit import COUNT, INCH, ip_sockets
     from motion_ctrl.ros.client import FAULTS, SlideClient
     from motion_ctrl.ros.processes import start_slide
     # (the loops at a real-time priority, as on a controller PC that must not let what it
@@ -97,7 +97,7 @@ def controller_pc(out: str, seconds: str, log_dir: str) -> None:
     plant, controller = start_slide(rt, rt, log_dir=log_dir)
     rclpy.init()
     client = SlideClient(name='mover')
-    moves, words = [], []
+    moves, words, sockets = [], [], {}
     try:
         assert client.wait_ready(30.0), client.not_ready()
         pathlib.Path(out + '.ready').touch()
@@ -111,13 +111,28 @@ def controller_pc(out: str, seconds: str, log_dir: str) -> None:
             moves.append(None if done is None else (client.load_position() - target) / COUNT)
             words += [w for _, w in client.status_log['x'][mark:]]
             client.spin_for(0.3)
+        sockets = {f'{n} {k}': [s for s in ip_sockets(pid) if s[1] != '127.0.0.1']
+                   for n, node in (('plant', plant), ('controller', controller))
+                   for k, pid in _processes(node.proc.pid).items()}
     finally:
         faults = sorted({w & FAULTS for w in words if w & FAULTS})
-        pathlib.Path(out).write_text(json.dumps({'moves': moves, 'faults': faults}))
+        pathlib.Path(out).write_text(json.dumps({'moves': moves, 'faults': faults,
+                                                 'beyond_loopback': sockets}))
         client.destroy_node()
         rclpy.try_shutdown()
         for node in (controller, plant):
             node.stop()
+
+
+def _processes(bridge: int) -> dict[str, int]:
+    """The processes of a node the user started: its bridge (`bridge`), the loop and the
+    relay (its children, by their command lines)."""
+    out = {'bridge': bridge}
+    kids = pathlib.Path(f'/proc/{bridge}/task/{bridge}/children').read_text().split()
+    for pid in kids:
+        cmd = pathlib.Path(f'/proc/{pid}/cmdline').read_bytes().split(b'\0')
+        out['relay' if b'relay' in cmd else 'loop'] = int(pid)
+    return out
 
 
 # -- the laptop ----------------------------------------------------------------------------------
