@@ -110,9 +110,9 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     # Every participant of the bridge's process and of the node's (inherited) talks loopback
     # UDP only, its sockets bound to 127.0.0.1: a process killed on the bus leaves no
     # shared-memory port for the other to wait on, and no other host reaches the bus
-    # (servo_bus.xml). Set before the bridge's first node makes its participant.
-    # Your domain opened to other hosts: the bridge's side of it goes onto the local domain,
-    # and a relay of your environment mirrors it onto yours (servo_bus.relay).
+    # (servo_bus.xml). Set before the bridge's first node makes its participant. With your
+    # domain opened to other hosts, the bridge's side goes onto the local domain instead, and
+    # a relay with your environment mirrors it onto yours (servo_bus.relay).
     user_env = dict(os.environ)
     transport = ros_env.servo_bus()
     local = relay.local_domain() if transport and relay.reaches_other_hosts() else None
@@ -137,8 +137,9 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         bus.bridge.log('the servo bus runs on your Fast DDS profile file, not on servo_bus.xml: '
                        'a node killed on the bus can hold up the other for a second, and other '
                        'hosts may reach the bus')
-    if local is not None:
-        started.append(relay.start(*names, local, user_env))
+    relayed = relay.start(*names, local, user_env) if local is not None else None
+    if relayed is not None:
+        started.append(relayed)
     # The bridge's participant is on the bus before the node starts: a participant joining
     # later would disturb a running loop (why the bus exists).
     node = subprocess.Popen([sys.executable, '-m', module, *argv[1:]],
@@ -158,14 +159,14 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
             except subprocess.TimeoutExpired:
                 node.kill()
                 node.wait()
-        for child in started[:-1]:                # the relay, if any (it ends on SIGTERM)
-            if child.poll() is None:
-                child.send_signal(signal.SIGTERM)
+        if relayed is not None:                   # (after the node: it said its last)
+            if relayed.poll() is None:
+                relayed.send_signal(signal.SIGTERM)
             try:
-                child.wait(STOP_WAIT_BRIDGE)
+                relayed.wait(STOP_WAIT_BRIDGE)
             except subprocess.TimeoutExpired:
-                child.kill()
-                child.wait()
+                relayed.kill()
+                relayed.wait()
         rc = node.returncode if node.returncode >= 0 else 128 - node.returncode
         # (its node gone, the bridge leaves with its code even if ROS's teardown hangs:
         # doc/design_notes.md, "The servo bus as the default")

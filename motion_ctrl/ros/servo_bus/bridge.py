@@ -203,7 +203,6 @@ class Bridge:
         self.group = ReentrantCallbackGroup()
         self.outward: dict[str, _Outward] = {}
         self.inward: set[str] = set()            # topics copied in
-        # the servo streams read on the user's domain, while a foreign node publishes them
         self.services: set[str] = set()          # services answered
         self.skipped: set[str] = set()           # names whose type is not installed here
         self.dropping: set[str] = set()          # topics that lost a sample (logged once)
@@ -246,7 +245,7 @@ class Bridge:
                 continue
             mine = [i for i in self.servo.get_publishers_info_by_topic(topic)
                     if i.node_name == self.name and i.node_namespace == ns]
-            msg_type = self._type(topic, types)
+            msg_type = self.type_of(topic, types)
             if msg_type is not None and mine:
                 self.outward[topic] = _Outward(self, topic, types[0], msg_type, mine[0])
         subscribed = self.servo.get_subscriber_names_and_types_by_node(self.name, ns)
@@ -270,7 +269,7 @@ class Bridge:
         for service, types in self.servo.get_service_names_and_types_by_node(self.name, ns):
             if service in self.services:
                 continue
-            srv_type = self._type(service, types)
+            srv_type = self.type_of(service, types)
             if srv_type is None:
                 continue
             client: Client = self.calls.create_client(srv_type, service)
@@ -308,7 +307,7 @@ class Bridge:
         None when its type is not installed here or the subscription is not seen yet."""
         mine = [i for i in self.servo.get_subscriptions_info_by_topic(topic)
                 if i.node_name == self.name and i.node_namespace == self.namespace]
-        msg_type = self._type(topic, types)
+        msg_type = self.type_of(topic, types)
         return None if msg_type is None or not mine else (msg_type, inward_qos(mine[0]))
 
     def _strangers(self, nodes: list[tuple[str, str]]) -> None:
@@ -328,7 +327,8 @@ class Bridge:
                      f'on this domain? Its participants can hold up the loop')
         self.suspects = unbridged
 
-    def _type(self, name: str, types: list[str]):
+    def type_of(self, name: str, types: list[str]):
+        """The class of `name`'s first type; None (said once) when not installed here."""
         t = interface_type(types[0]) if types else None
         if t is None and name not in self.skipped:
             self.skipped.add(name)

@@ -92,7 +92,7 @@ class Commander:
         (a relay only refuses)."""
         if not self.relay:
             return self.bridge.inward_kind(topic, types)
-        msg_type = self.bridge._type(topic, types)
+        msg_type = self.bridge.type_of(topic, types)
         return None if msg_type is None else (msg_type, QoSProfile(depth=10))
 
     def report(self) -> None:
