@@ -107,19 +107,8 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
         return 2
     if domain is None:
         return None
-    # Every participant of the bridge's process and of the node's (inherited) talks loopback
-    # UDP only, its sockets bound to 127.0.0.1: a process killed on the bus leaves no
-    # shared-memory port for the other to wait on, and no other host reaches the bus
-    # (servo_bus.xml). Set before the bridge's first node makes its participant. With your
-    # domain opened to other hosts, the bridge's side goes onto the local domain instead, and
-    # a relay with your environment mirrors it onto yours (servo_bus.relay).
     user_env = dict(os.environ)
-    transport = ros_env.servo_bus()
-    local = relay.local_domain() if transport and relay.reaches_other_hosts() else None
-    os.environ.update(transport)
-    if local is not None:
-        for k in relay.PEER_VARS:
-            os.environ.pop(k, None)
+    transport, local = _bus_environment()
     stop: list[int] = []
     started: list[subprocess.Popen] = []
     # The node is told SIGTERM: it stops as on SIGINT once it runs, and while it still imports
@@ -151,28 +140,45 @@ def supervise(module: str, name: str, argv: list[str]) -> int | None:
     try:
         bus.run(node, stop)
     finally:
-        if node.poll() is None:
-            if not stop:                          # (on a signal, on_signal sent it: once)
-                node.send_signal(signal.SIGTERM)  # the node commands 0 V and disables first
-            try:                                  # (the bridge still up while it says so)
-                node.wait(STOP_WAIT)
-            except subprocess.TimeoutExpired:
-                node.kill()
-                node.wait()
-        if relayed is not None:                   # (after the node: it said its last)
-            if relayed.poll() is None:
-                relayed.send_signal(signal.SIGTERM)
-            try:
-                relayed.wait(STOP_WAIT_BRIDGE)
-            except subprocess.TimeoutExpired:
-                relayed.kill()
-                relayed.wait()
+        # the node first, which commands 0 V and disables with the bridge still up (on a
+        # signal, on_signal has told it: once), then the relay
+        _stop(node, STOP_WAIT, tell=not stop)
+        if relayed is not None:
+            _stop(relayed, STOP_WAIT_BRIDGE, tell=True)
         rc = node.returncode if node.returncode >= 0 else 128 - node.returncode
         # (its node gone, the bridge leaves with its code even if ROS's teardown hangs:
         # doc/design_notes.md, "The servo bus as the default")
         ros_env.leave_if_stuck(name, STOP_WAIT_BRIDGE, rc, 'closing the bridge')
         bus.close()
     return rc
+
+
+def _bus_environment() -> tuple[dict, int | None]:
+    """Put the servo bus's environment into this process's, for the bridge and (inherited)
+    the node: every participant talks loopback UDP only, its sockets bound to 127.0.0.1, so a
+    process killed on the bus leaves no shared-memory port for the other to wait on and no
+    other host reaches the bus (servo_bus.xml; before the bridge's first node makes its
+    participant). Returns that environment ({} under a profile file of the user's) and the
+    local domain when the user's reaches other hosts: the bridge's side goes there, and a
+    relay with the user's environment mirrors it onto theirs (servo_bus.relay); else None."""
+    transport = ros_env.servo_bus()
+    local = relay.local_domain() if transport and relay.reaches_other_hosts() else None
+    os.environ.update(transport)
+    if local is not None:
+        for k in relay.PEER_VARS:
+            os.environ.pop(k, None)
+    return transport, local
+
+
+def _stop(child: subprocess.Popen, wait: float, tell: bool) -> None:
+    """SIGTERM to `child` (if `tell` and it runs), then wait `wait` s for it, then SIGKILL."""
+    if child.poll() is None and tell:
+        child.send_signal(signal.SIGTERM)
+    try:
+        child.wait(wait)
+    except subprocess.TimeoutExpired:
+        child.kill()
+        child.wait()
 
 
 class _Bus:
