@@ -52,12 +52,14 @@ def _env(tmp_path, domain: int, recipe: str) -> dict:
 
 
 def _discovery_server(hosts: Hosts, env: dict, log: pathlib.Path) -> subprocess.Popen:
-    """Fast DDS's discovery server on the controller PC (`fastdds discovery`; the pip
-    wheel's binary finds its libraries through LD_LIBRARY_PATH only)."""
+    """Fast DDS's discovery server on the controller PC: what `fastdds discovery -l IP -p
+    PORT` runs (its Python front end wants psutil, which nothing else here needs: the binary
+    itself, with the front end's server command, 42; the pip wheel's binary finds its
+    libraries through LD_LIBRARY_PATH only)."""
     venv = pathlib.Path(sys.executable).parents[1]
     libs = [venv / 'lib', *venv.glob('lib/python3*/site-packages/ros_fastdds.libs')]
     return hosts.popen(hosts.controller, [
-        str(venv / 'bin' / 'fastdds'), 'discovery', '-l', CONTROLLER_IP, '-p', '11811'],
+        str(venv / 'bin' / 'fast-discovery-server'), '42', '-l', CONTROLLER_IP, '-p', '11811'],
         env | {'LD_LIBRARY_PATH': os.pathsep.join(map(str, libs))},
         stdout=log.open('w'), stderr=subprocess.STDOUT)
 
@@ -70,6 +72,14 @@ def _wait_file(path: pathlib.Path, proc: subprocess.Popen, timeout: float) -> No
         time.sleep(0.1)
 
 
+def _wait_text(path: pathlib.Path, text: str, proc: subprocess.Popen, timeout: float) -> None:
+    end = time.monotonic() + timeout
+    while text not in (path.read_text() if path.exists() else ''):
+        assert proc.poll() is None, f'{path.name}: {path.read_text()}'
+        assert time.monotonic() < end, f'no {text!r} in {path.name} within {timeout} s'
+        time.sleep(0.1)
+
+
 @pytest.mark.parametrize('recipe', list(RECIPES))
 def test_tuned_from_a_laptop_the_loop_unaffected(tmp_path, own_domain, recipe):
     hosts = Hosts(str(os.getpid() % 10000))
@@ -77,7 +87,8 @@ def test_tuned_from_a_laptop_the_loop_unaffected(tmp_path, own_domain, recipe):
     ctl_out, lap_out = tmp_path / 'controller_pc.json', tmp_path / 'laptop.json'
     try:
         if recipe == 'discovery_server':
-            _discovery_server(hosts, env, tmp_path / 'discovery_server.log')
+            server = _discovery_server(hosts, env, tmp_path / 'discovery_server.log')
+            _wait_text(tmp_path / 'discovery_server.log', 'Server started', server, 10.0)
         pc = hosts.popen(hosts.controller, [sys.executable, str(KIT), 'controller_pc',
                                             str(ctl_out), '150', str(tmp_path)], env)
         _wait_file(pathlib.Path(f'{ctl_out}.ready'), pc, 60.0)
