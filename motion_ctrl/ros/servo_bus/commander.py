@@ -8,7 +8,8 @@ controller). Its bridge watches the user's domain for publishers of those stream
 bridges (a `ros2 topic pub`, a stray node, a laptop): while the node has a peer on the bus each
 of them is refused. Without a peer on the bus the node can be bound on purpose to a node of
 another make on the user's domain, named by PEER_ENV (its full name, e.g. `/plant`): that
-node's samples are copied onto the bus and every other source's refused.
+node's samples are copied onto the bus and every other source's refused. A relay to other
+hosts (servo_bus.relay) copies none in: the node's source is on its own host.
 
 A refused sample never reaches the bus. The bridge logs each refused source once a second with
 a count (ros.refusals), naming the node, and publishes on /diagnostics a status
