@@ -106,7 +106,7 @@ def controller_pc(out: str, seconds: str, log_dir: str) -> None:
         while time.monotonic() < end and not stop.exists():
             target = 2 * INCH if target == INCH else INCH
             mark = len(client.status_log['x'])
-            done = client.move({'x': target}, timeout=5.0)
+            done = client.move({'x': target}, timeout=10.0)
             client.spin_for(0.05)
             moves.append(None if done is None else (client.load_position() - target) / COUNT)
             words += [w for _, w in client.status_log['x'][mark:]]
@@ -144,15 +144,21 @@ def laptop(out: str, *phases: str) -> None:
         for phase in phases:
             name, _, arg = phase.partition(':')
             key = name if name not in found else f'{name}_2'
-            n0 = len(tools.loop)
+            n0, j0 = len(tools.loop), len(tools.joints)
             found[key] = getattr(tools, name)(arg)
             found[key]['loop'] = [{k: d.get(k) for k in ('rate_hz', 'overruns_total')}
                                   for d in tools.loop[n0:]]
+            found[key]['gaps'] = gaps(tools.joints[j0:])
             pathlib.Path(f'{out}.{key}').write_text(json.dumps(found[key]))
     finally:
         pathlib.Path(out).write_text(json.dumps(found))
         tools.destroy_node()
         rclpy.try_shutdown()
+
+
+def gaps(arrivals: list[float], longer: float = 0.5) -> list[tuple[float, float]]:
+    """(start, end) wall-clock times of the pauses over `longer` s between arrivals."""
+    return [(a, b) for a, b in zip(arrivals, arrivals[1:]) if b - a > longer]
 
 
 class Laptop(Node):
@@ -161,11 +167,9 @@ class Laptop(Node):
     def __init__(self):
         super().__init__('laptop_tools')
         self.params = AsyncParameterClient(self, '/controller')
-        self.joints: list[float] = []
+        self.joints: list[float] = []         # arrival (wall clock) of each joint_states
         self.words: list[int] = []
         self.sources: list = []
-        self.create_subscription(JointState, md.JOINT_STATES,
-                                 lambda m: self.joints.append(time.monotonic()), 10)
         self.create_subscription(UInt32, md.status_topic('x'),
                                  lambda m: self.words.append(m.data), 10)
         self.loop: list[dict] = []            # the controller's servo loop status, each second
@@ -210,23 +214,27 @@ class Laptop(Node):
                     (p.name, r.reason) for p, r in zip(mine, loaded) if not r.successful]}
 
     def echo(self, seconds: str) -> dict:
+        """`ros2 topic echo /joint_states` for `seconds` (a reader of its own, as each echo
+        is: none is left to load the relays while the recording runs)."""
         n0, w0 = len(self.joints), len(self.words)
+        sub = self.create_subscription(JointState, md.JOINT_STATES,
+                                       lambda m: self.joints.append(time.time()), 10)
+        self.spin_until(lambda: len(self.joints) > n0, 10.0)
+        n0, t0 = len(self.joints), time.time()
         self.spin_for(float(seconds))
-        return {'joint_states': len(self.joints) - n0, 'status_words': len(self.words) - w0}
+        self.destroy_subscription(sub)
+        return {'joint_states': len(self.joints) - n0, 'status_words': len(self.words) - w0,
+                'first': t0}
 
-    def outage(self, seconds: str) -> dict:
-        """While the link goes down and comes up again (the test does it): whether the
-        joint_states stopped, and the gap until they came again (at most `seconds`)."""
-        end = time.monotonic() + float(seconds)
-        while time.monotonic() < end and not (
-                self.joints and time.monotonic() - self.joints[-1] > 1.0):
-            self.spin_for(0.05)
-        last, n0 = self.joints[-1] if self.joints else 0.0, len(self.joints)
-        seen_down = time.monotonic() < end
-        while time.monotonic() < end and len(self.joints) == n0:
-            self.spin_for(0.05)
-        gap = self.joints[n0] - last if len(self.joints) > n0 else None
-        return {'seen_down': seen_down, 'gap': None if gap is None else round(gap, 2)}
+    def spin_until(self, done, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and not done():
+            rclpy.spin_once(self, timeout_sec=0.05)
+
+    def listen(self, seconds: str) -> dict:
+        """Tools attached for `seconds` while the test takes the link down and up: the
+        pauses of joint_states (the phase's `gaps`) say when they stopped and came again."""
+        return self.echo(seconds)
 
     def record(self, seconds: str) -> dict:
         bag = pathlib.Path(os.environ['TWO_HOSTS_DIR']) / 'laptop_bag'
@@ -249,7 +257,7 @@ class Laptop(Node):
             cmd.publish(md.joint_state(stamp, ['x'], effort=[10.0]))
             enc.publish(md.joint_state(stamp, ['x_motor', 'x_load'], [1e6, 1e6]))
             self.spin_for(0.01)
-        self.spin_for(1.5)
+        self.spin_for(2.5)                     # (the statuses of the last second)
         return {'sources': self.sources[s0:],
                 'matched': [cmd.get_subscription_count(), enc.get_subscription_count()]}
 
