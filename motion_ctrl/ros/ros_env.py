@@ -110,18 +110,18 @@ def environ(overrides: dict):
     context's first node makes its participant (ROS_DISCOVERY_SERVER)."""
     saved = {k: os.environ.get(k) for k in overrides}
     try:
-        for k, v in overrides.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        _put(overrides)
         yield
     finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        _put(saved)
+
+
+def _put(values: dict) -> None:
+    for k, v in values.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
 
 
 def executor(context=None):
