@@ -383,19 +383,23 @@ class Axis(AxisCommands):
         compensation on a motor-side loop, and the feedback each term closes on; the following
         error against the command at the sample's time."""
         p = self.profile
+        fresh = sample_dt > 0.0 and age <= self._stall
         if dt > self._stall:
             self._replan_due = True
-            if sample_dt > 0.0:
-                self._replan_or_step(self._stall)
-            else:                   # no sample since the stall yet: the output is held
+            if fresh:
+                self._replan_or_step(self._stall, age)
+            else:                   # no sample of after the stall yet
                 self._stale_stall = True
                 p.step(self._stall if p.kind == 'path' else dt)
-        elif self._stale_stall and sample_dt > 0.0:
-            self._stale_stall = False
-            self._replan_or_step(dt)      # (the stall's own tick stepped it over the stall)
-        elif self._replan_due and 0.0 < sample_dt <= self._stall:
+        elif self._stale_stall:
+            if fresh:
+                self._stale_stall = False
+                self._replan_or_step(dt, age)  # (the stall's own tick stepped it over the stall)
+            else:
+                p.step(dt)
+        elif self._replan_due and fresh and sample_dt <= self._stall:
             self._replan_due = False
-            self._replan_or_step(dt, abs(p.velocity))
+            self._replan_or_step(dt, age, abs(p.velocity))
         else:
             p.step(dt)
         if self._guard:
@@ -419,18 +423,21 @@ class Axis(AxisCommands):
         self._loop_pos = loop_pos
         self.following_error = loop_cmd - loop_pos
 
-    def _replan_or_step(self, step: float, most: float = math.inf) -> None:
+    def _replan_or_step(self, step: float, age: float, most: float = math.inf) -> None:
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
-        measured state, in the profile's frame, starting at most `most` fast [m/s]; a path
-        (or a profile at rest) stepped on by `step` [s], after a stall STALL_PERIODS only. The
-        state is a new sample's: when the tick after the stall has none (the encoders' process
-        was held up with the loop, and its samples of the stall wait behind this tick), the
-        plan waits for the first that comes (`_stale_stall`; the output is held till then),
-        since the last one is as old as the stall and the slide ran on from it. The stall's
-        sample gives the mean speed over the stall, not the speed now (the amplifier's
-        watchdog may have braked the slide within it): the next sample's plan replaces this
-        one (`_replan_due`), before the command runs ahead of a slide that is slower; never
-        faster than this one (a single sample's speed carries the motor's ringing)."""
+        measured state, in the profile's frame, starting at most `most` fast [m/s] at the
+        sample's time and stepped on by its `age` [s] to now (the error is taken against the
+        command of the sample's time: planned from the sample, that is the sample itself); a
+        path (or a profile at rest) stepped on by `step` [s], after a stall STALL_PERIODS
+        only. The state is a fresh sample's, at most STALL_PERIODS old: when the tick after the
+        stall has none (the encoders' process was held up with the loop, and its samples of the
+        stall wait behind this tick) or only one from before the stall (it came in just before
+        the loop stopped), the plan waits for the first fresh one (`_stale_stall`), since the
+        slide ran on from the last. The stall's sample gives the mean speed over the stall,
+        not the speed now (the amplifier's watchdog may have braked the slide within it): the
+        next sample's plan replaces this one (`_replan_due`), before the command runs ahead of
+        a slide that is slower; never faster than this one (a single sample's speed carries
+        the motor's ringing)."""
         p = self.profile
         if not p.moving:
             p.step(step)
@@ -444,6 +451,8 @@ class Axis(AxisCommands):
             velocity = math.copysign(most, velocity)
         if not p.rebase(position, velocity):
             p.step(step)
+        elif age > 0.0:
+            p.step(age)
 
     def _overspeed_fault(self) -> None:
         """1a. The measured motor velocity (in load units) beyond overspeed_velocity: a drive's
