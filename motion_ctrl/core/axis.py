@@ -121,8 +121,12 @@ class Axis(AxisCommands):
         self.following_error = 0.0
         # A stall's plan was made from its sample's mean speed: planned again on the next one.
         self._replan_due = False
-        # A stall whose sample is as old as it: planned from the first new sample instead.
+        # A stall whose sample is as old as it: planned from the first fresh sample instead,
+        # waited for since this servo time, the motion then moving (planned again even if its
+        # plan ran out meanwhile).
         self._stale_stall = False
+        self._stale_since = math.nan
+        self._stale_moving = False
         self._loop_cmd = self._loop_pos = self._loop_acc = 0.0   # this tick's loop terms
         self.correction = 0.0        # backlash + leadscrew correction on the motor command
         # Sampled dual loop (Galil): motor target = user target + offset.
@@ -353,7 +357,9 @@ class Axis(AxisCommands):
             self._overspeed_fault()
             return 0.0
         self._step_command(dt, age, sample_dt)
-        if self._following_error_fatal():
+        if self._stale_stall:       # no fresh sample since a stall: no error to judge yet
+            sample_dt = 0.0
+        elif self._following_error_fatal():
             return 0.0
         out = self._servo(sample_dt)
         self._update_status(sample_dt, motor_counts)
@@ -386,15 +392,20 @@ class Axis(AxisCommands):
         fresh = sample_dt > 0.0 and age <= self._stall
         if dt > self._stall:
             self._replan_due = True
-            if fresh:
-                self._replan_or_step(self._stall, age)
-            else:                   # no sample of after the stall yet
-                self._stale_stall = True
-                p.step(self._stall if p.kind == 'path' else dt)
-        elif self._stale_stall:
+            moving = p.moving or (self._stale_stall and self._stale_moving)
             if fresh:
                 self._stale_stall = False
-                self._replan_or_step(dt, age)  # (the stall's own tick stepped it over the stall)
+                self._replan_or_step(self._stall, age, moving=moving)
+            else:                   # no sample of after the stall yet: wait for one
+                if not self._stale_stall:
+                    self._stale_since = self.time
+                self._stale_stall = True
+                self._stale_moving = moving
+                p.step(self._stall if p.kind == 'path' else dt)
+        elif self._stale_stall:
+            if fresh or (sample_dt > 0.0 and self.time - self._stale_since > self._stall):
+                self._stale_stall = False
+                self._replan_or_step(dt, age, moving=self._stale_moving)
             else:
                 p.step(dt)
         elif self._replan_due and fresh and sample_dt <= self._stall:
@@ -423,7 +434,8 @@ class Axis(AxisCommands):
         self._loop_pos = loop_pos
         self.following_error = loop_cmd - loop_pos
 
-    def _replan_or_step(self, step: float, age: float, most: float = math.inf) -> None:
+    def _replan_or_step(self, step: float, age: float, most: float = math.inf,
+                        moving: bool = False) -> None:
         """2a. The catch-up rule (STALL_PERIODS): a move, jog or stop planned again from the
         measured state, in the profile's frame, starting at most `most` fast [m/s] at the
         sample's time and stepped on by its `age` [s] to now (the error is taken against the
@@ -432,14 +444,18 @@ class Axis(AxisCommands):
         only. The state is a fresh sample's, at most STALL_PERIODS old: when the tick after the
         stall has none (the encoders' process was held up with the loop, and its samples of the
         stall wait behind this tick) or only one from before the stall (it came in just before
-        the loop stopped), the plan waits for the first fresh one (`_stale_stall`), since the
-        slide ran on from the last. The stall's sample gives the mean speed over the stall,
-        not the speed now (the amplifier's watchdog may have braked the slide within it): the
-        next sample's plan replaces this one (`_replan_due`), before the command runs ahead of
-        a slide that is slower; never faster than this one (a single sample's speed carries
-        the motor's ringing)."""
+        the loop stopped), the plan waits for the first fresh one (`_stale_stall`; a new sample
+        of any age once it waited STALL_PERIODS), since the slide ran on from the last. The
+        plan steps on meanwhile (a path STALL_PERIODS at the stall), the output is held and
+        the following error not judged (against a plan about to be made again, an old sample's
+        error means nothing), and a motion that was `moving` at the stall is planned again
+        even if its plan ran out in the wait (the slide, braked, is short of it). The stall's
+        sample gives the mean speed over the stall, not the speed now (the amplifier's watchdog
+        may have braked the slide within it): the next sample's plan replaces this one
+        (`_replan_due`), before the command runs ahead of a slide that is slower; never faster
+        than this one (a single sample's speed carries the motor's ringing)."""
         p = self.profile
-        if not p.moving:
+        if not (p.moving or moving):
             p.step(step)
             return
         if self._motor_side:
@@ -487,14 +503,18 @@ class Axis(AxisCommands):
         """6. The servo law, on new samples over the time they cover. Without a new sample
         (feedback held up, within feedback_timeout) the output is held, as a drive holds its
         command over a missed fieldbus frame: acting again on the same sample would wind the
-        integrator up against a position that is only old."""
+        integrator up against a position that is only old. A sample covers at most
+        STALL_PERIODS for the law: after a stall or a gap in the feedback, an error the loop did
+        not see over the rest is not integrated (over a 0.5 s stall at rest, 0.07 mm of error
+        was 10 V of integral at once)."""
         if sample_dt > 0.0:
             p = self.profile
             velocity = p.velocity
             vel = self.actual_vel   # (positional: keywords cost 0.13 µs a call here)
             self.output = self.servo.update(
-                sample_dt, self._loop_cmd, velocity, p.acceleration, self._loop_pos, vel, vel,
-                self._loop_acc, velocity == 0.0 and not p.moving, self._half, self._shift)
+                min(sample_dt, self._stall), self._loop_cmd, velocity, p.acceleration,
+                self._loop_pos, vel, vel, self._loop_acc, velocity == 0.0 and not p.moving,
+                self._half, self._shift)
         return self.output
 
     def _update_status(self, sample_dt: float, motor_counts) -> None:
