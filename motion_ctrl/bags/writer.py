@@ -70,7 +70,7 @@ from motion_ctrl.ros import ros_env
 # Topics recorded by default (relative names); plus every <axis>/status.
 SERVO_TOPICS = ('joint_states', 'reference_states', 'motor_states', 'command', 'encoders',
                 'plant_states')
-DEFAULT_DEPTH = 1000
+DEFAULT_DEPTH = 10000
 RESCAN_PERIOD = 0.5        # s between graph scans for new topics
 SPIN_TIMEOUT = 0.05        # s: how quickly a stop request is seen
 

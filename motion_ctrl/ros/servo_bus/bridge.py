@@ -54,7 +54,7 @@ POLL = 0.1                   # s between looks for readers on the user's side
 GRAPH_POLL = 1.0             # s between looks at the node's endpoints, after STARTUP s
 STARTUP, STARTUP_POLL = 5.0, 0.25   # s: the node's endpoints appear over its first seconds
 SERVICE_TIMEOUT = 10.0       # s a forwarded request waits for the node's answer
-STREAM_DEPTH = 1000          # as msg_defs.SERVO_QOS: a reliable reader starved 1 s loses nothing
+STREAM_DEPTH = 10000         # a reliable reader on the user's side held up 10 s loses nothing
 
 
 # An action's parts on the graph ('<pkg>/action/<Action>_<part>') are classes of the action's
