@@ -505,8 +505,8 @@ class Axis(AxisCommands):
         command over a missed fieldbus frame: acting again on the same sample would wind the
         integrator up against a position that is only old. A sample covers at most
         STALL_PERIODS for the law: after a stall or a gap in the feedback, an error the loop did
-        not see over the rest is not integrated (over a 0.5 s stall at rest, 0.07 mm of error
-        was 10 V of integral at once)."""
+        not see over the rest is not integrated (integrated over a 0.5 s stall at rest, 0.07 mm
+        of error drove 5.6 V at once)."""
         if sample_dt > 0.0:
             p = self.profile
             velocity = p.velocity
