@@ -107,8 +107,10 @@ def controller_pc(out: str, seconds: str, log_dir: str) -> None:
             target = 2 * INCH if target == INCH else INCH
             mark = len(client.status_log['x'])
             done = client.move({'x': target}, timeout=10.0)
-            client.spin_for(0.05)
-            moves.append(None if done is None else (client.load_position() - target) / COUNT)
+            # (the true position from a plant_states sample stamped after MOTION_DONE: through
+            # the relay, its copy can lag seconds on this machine's two shared cores)
+            fresh = done is not None and client.truth_since(client.done_at, 12.0)
+            moves.append((client.load_position() - target) / COUNT if fresh else None)
             words += [w for _, w in client.status_log['x'][mark:]]
             client.spin_for(0.3)
         sockets = {f'{n} {k}': [s for s in ip_sockets(pid) if s[1] != '127.0.0.1']
