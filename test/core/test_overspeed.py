@@ -188,13 +188,20 @@ def _moves_with_late_ticks(seed: int, share: float = 0.02, most: int = 25):
         fastest = max(fastest, abs(axis.motor_vel))
         assert not axis.status & S.OVERSPEED, (seed, k, axis.motor_vel)
         if axis.status & S.MOTION_DONE and k - since > 50:
-            if axis.target is not None:
-                errors.append((plant.x_l - axis.target) * LOAD_COUNTS_PER_M)
-            if targets:
-                assert loop.move({'x': targets.pop(0)}) == []
+            _next_target(loop, plant, targets, errors)
             since = k
         k += 1
     return fastest, errors
+
+
+def _next_target(loop, plant, targets: list[float], errors: list[float]) -> None:
+    """At MOTION_DONE: the slide's error from the target reached (if one was set) into
+    `errors` [counts], then the next of `targets` started."""
+    axis = loop.axes['x']
+    if axis.target is not None:
+        errors.append((plant.x_l - axis.target) * LOAD_COUNTS_PER_M)
+    if targets:
+        assert loop.move({'x': targets.pop(0)}) == []
 
 
 def test_late_ticks_at_random_neither_sprint_nor_trip():
@@ -287,10 +294,7 @@ def _moves_over_dds(seed: int, share: float, most: int) -> tuple[list[float], li
         if axis.status & (S.OVERSPEED | S.FOLLOWING_ERROR_FATAL):
             return errors, [axis.fault_reason]
         if axis.enabled and axis.status & S.MOTION_DONE and k - since > 50:
-            if axis.target is not None:
-                errors.append((plant.x_l - axis.target) * LOAD_COUNTS_PER_M)
-            if targets:
-                assert loop.move({'x': targets.pop(0)}) == []
+            _next_target(loop, plant, targets, errors)
             since = k
         k += 1
     return errors, []

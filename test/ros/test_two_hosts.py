@@ -183,9 +183,9 @@ def _incomplete(bag: pathlib.Path, skipped: int) -> list[str]:
         t = sorted(stamps.get(topic, []))
         missing = sum(round(b - a, 3) * 1000 - 1 for a, b in zip(t, t[1:]))
         span = t[-1] - t[0] if t else 0.0
-        print(f'{topic}: {len(t)} messages over {span:.3f} s, {missing:.0f} periods without '
-              f'one (the loop skipped {skipped})')
+        line = (f'{topic}: {len(t)} messages over {span:.3f} s, {missing:.0f} periods without '
+                f'one (the loop skipped {skipped})')
+        print(line)
         if span <= 2.0 or missing > (skipped if topic != '/encoders' else 0.02 * len(t)):
-            lacks.append(f'{topic}: {len(t)} messages over {span:.3f} s, {missing:.0f} '
-                         f'periods without one (the loop skipped {skipped})')
+            lacks.append(line)
     return lacks
